@@ -1,0 +1,95 @@
+"""Loading validated YAML configs with errors that name the file, the field and the expected value.
+
+All simnav configs are frozen pydantic models whose defaults are the product; YAML files override only what
+differs, and ``--set a.b=c`` overrides single fields from the command line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from simnav.errors import ConfigError
+
+ModelT = TypeVar("ModelT", bound=BaseModel)
+
+
+class FrozenModel(BaseModel):
+    """Base of every simnav config: immutable, unknown fields rejected."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+def format_validation_error(err: ValidationError, source: str) -> str:
+    """One readable message per failing field: ``source: field.path: message (got value)``."""
+    lines = []
+    for item in err.errors():
+        loc = ".".join(str(p) for p in item["loc"]) or "<root>"
+        msg = item["msg"]
+        got = item.get("input")
+        got_txt = "" if isinstance(got, dict | list) or got is None else f" (got {got!r})"
+        lines.append(f"{source}: field '{loc}': {msg}{got_txt}")
+    return "\n".join(lines)
+
+
+def validate(model: type[ModelT], data: Any, source: str) -> ModelT:
+    """Validate ``data`` into ``model``; raise :class:`ConfigError` naming ``source`` and the fields."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(format_validation_error(err, source)) from None
+
+
+def read_yaml(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping; malformed YAML or a non-mapping top level raise :class:`ConfigError`."""
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read file ({err.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(err, "problem", None) or str(err)
+        raise ConfigError(f"{path}: malformed YAML{where}: {problem}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
+    return data
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str] | None, source: str = "--set") -> dict[str, Any]:
+    """Apply dotted ``key.sub=value`` overrides (values parsed as YAML scalars) to a nested dict copy."""
+    result = _deep_copy(data)
+    for item in overrides or []:
+        if "=" not in item:
+            raise ConfigError(f"{source}: expected KEY=VALUE (e.g. drive.max_v_m_s=0.4), got {item!r}")
+        key, raw = item.split("=", 1)
+        parts = [p for p in key.strip().split(".") if p]
+        if not parts:
+            raise ConfigError(f"{source}: empty key in {item!r}")
+        node = result
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{source}: '{key}' goes through a non-mapping field '{part}'")
+        node[parts[-1]] = yaml.safe_load(raw)
+    return result
+
+
+def _deep_copy(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {k: _deep_copy(v) for k, v in data.items()}
+    if isinstance(data, list):
+        return [_deep_copy(v) for v in data]
+    return data
+
+
+def dump_yaml(model: BaseModel) -> str:
+    """The resolved config as YAML (stable key order, for reproducible run folders)."""
+    return yaml.safe_dump(model.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,250 @@
+"""Simulated RGB-D camera: metric z-depth, colour, per-pixel body ids and per-pixel ground-truth motion.
+
+Two backends give the same geometry:
+
+* ``gl`` renders with MuJoCo's OpenGL renderer (EGL, headless). One pass in segmentation colours yields depth
+  and body ids together; a second, lit pass gives colour.
+* ``raycast`` casts one ray per pixel with ``mj_multiRay`` (used when EGL is unavailable); colour is the geom
+  colour with Lambertian shading from the surface normals.
+
+The camera is defined by ``fovy`` and the image size only, so K = [[f, 0, (W-1)/2], [0, f, (H-1)/2], [0, 0, 1]]
+with f = (H/2)/tan(fovy/2). Depth noise follows :func:`simnav.sensors.noise.depth_noise`; pixels beyond the range
+limits or seen at grazing angles are null (0).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import mujoco
+import numpy as np
+
+from simnav.geometry.camera import R_MUJOCOCAM_OPTICAL, PinholeCamera
+from simnav.robot.mjcf import R_BODY_MJCAM
+from simnav.robot.spec import RGBDSensor
+from simnav.sensors.lidar import RayCaster
+from simnav.sensors.noise import depth_noise, grazing_mask
+from simnav.sensors.presets import resolve_rgbd
+from simnav.sensors.readings import RGBDFrame
+
+log = logging.getLogger(__name__)
+_gl_failure: str | None = None
+
+
+class RGBDCamera:
+    """A camera mounted on the robot (see :class:`simnav.robot.spec.RGBDSensor`).
+
+    Args:
+        spec: the sensor description.
+        model: the compiled scene.
+        robot_body: body id of the robot (excluded from ray casting).
+        backend: ``"auto"`` (GL if EGL works, else ray casting), ``"gl"`` or ``"raycast"``.
+    """
+
+    def __init__(self, spec: RGBDSensor, model: mujoco.MjModel, robot_body: int, backend: str = "auto") -> None:
+        self.name = spec.name
+        self.params = resolve_rgbd(spec)
+        self.period_s = 1.0 / self.params.rate_hz
+        self.latency_s = self.params.latency_s
+        self.pinhole = PinholeCamera.from_fovy(self.params.width, self.params.height, self.params.fovy_deg)
+        T_base_body = spec.mount.T_base_sensor()
+        self.T_base_sensor = T_base_body.copy()
+        self.T_base_sensor[:3, :3] = T_base_body[:3, :3] @ R_BODY_MJCAM @ R_MUJOCOCAM_OPTICAL
+        self._model = model
+        self._cam_id = model.camera(spec.name).id
+        self._rays_optical = self.pinhole.rays_optical()  # (H, W, 3) with z = 1
+        self._backend = _GLBackend(model, self._cam_id, self.params) if _use_gl(backend) else None
+        if self._backend is None:
+            dirs = self._rays_optical / np.linalg.norm(self._rays_optical, axis=-1, keepdims=True)
+            self._unit_z = dirs[..., 2]
+            self._raycast_dirs_mjcam = (dirs @ R_MUJOCOCAM_OPTICAL.T).reshape(-1, 3)
+            self._robot_body = robot_body
+
+    @property
+    def backend(self) -> str:
+        """``"gl"`` or ``"raycast"``."""
+        return "raycast" if self._backend is None else "gl"
+
+    def capture(self, data: mujoco.MjData, stamp_s: float, rng: np.random.Generator,
+                body_twists_world: np.ndarray) -> RGBDFrame:
+        """Take a frame at the current state of ``data``.
+
+        Args:
+            body_twists_world: (nbody, 6) linear velocity of each body's origin and its angular velocity, both in
+                the world frame (m/s, rad/s); used for the per-pixel ground-truth motion.
+        """
+        if self._backend is not None:
+            depth, body_id, rgb = self._backend.render(data, self.params.rgb)
+        else:
+            depth, body_id, rgb = self._raycast(data)
+        p = self.params
+        points = self._rays_optical * depth[..., None]
+        ideal = np.where((depth >= p.min_range_m) & (depth <= p.max_range_m), depth, 0.0)
+        ideal[grazing_mask(points, p.grazing_angle_rad)] = 0.0
+        noisy = depth_noise(ideal, rng, p.noise_k_per_m, p.depth_quantum_m, p.dropout_prob)
+        body_id = np.where(depth > 0, body_id, -1).astype(np.int32)
+        velocity = self._pixel_velocity(data, points, body_id, body_twists_world)
+        return RGBDFrame(sensor=self.name, stamp_s=stamp_s, depth_m=noisy, rgb=rgb, K=self.pinhole.K,
+                         T_base_sensor=self.T_base_sensor, body_id=body_id, velocity_optical=velocity)
+
+    def T_world_optical(self, data: mujoco.MjData) -> np.ndarray:
+        """(4, 4) current pose of the optical frame in the world."""
+        T = np.eye(4)
+        T[:3, :3] = data.cam_xmat[self._cam_id].reshape(3, 3) @ R_MUJOCOCAM_OPTICAL
+        T[:3, 3] = data.cam_xpos[self._cam_id]
+        return T
+
+    def _pixel_velocity(self, data, points_optical, body_id, twists) -> np.ndarray:
+        """(3, H, W) float32 world velocity of each observed point, expressed in the optical frame, m/s."""
+        h, w = body_id.shape
+        out = np.zeros((h, w, 3), dtype=np.float64)
+        moving = body_id > 0
+        moving[moving] = np.any(twists[body_id[moving]] != 0, axis=1)
+        if moving.any():
+            T = self.T_world_optical(data)
+            ids = body_id[moving]
+            p_world = points_optical[moving] @ T[:3, :3].T + T[:3, 3]
+            lever = p_world - data.xpos[ids]
+            v_world = twists[ids, :3] + np.cross(twists[ids, 3:], lever)
+            out[moving] = v_world @ T[:3, :3]
+        return np.ascontiguousarray(out.transpose(2, 0, 1), dtype=np.float32)
+
+    def _raycast(self, data):
+        h, w = self.params.height, self.params.width
+        if not hasattr(self, "_caster"):
+            self._caster = _CameraRays(self._model, self._cam_id, self._raycast_dirs_mjcam, self._robot_body,
+                                       self.params.max_range_m * 2)
+        dist, geom, normal = self._caster.cast(data)
+        depth = (dist.reshape(h, w) * self._unit_z).astype(np.float64)
+        body_id = np.where(geom >= 0, self._model.geom_bodyid[np.maximum(geom, 0)], -1).reshape(h, w)
+        rgb = None
+        if self.params.rgb:
+            rays_world = self._caster.rays_world(data)
+            shade = 0.35 + 0.65 * np.abs(np.einsum("nc,nc->n", normal, rays_world))
+            color = self._model.geom_rgba[np.maximum(geom, 0), :3] * shade[:, None]
+            color[geom < 0] = (0.7, 0.75, 0.8)
+            rgb = (np.clip(color, 0, 1) * 255).astype(np.uint8).reshape(h, w, 3)
+        return depth, body_id, rgb
+
+    def close(self) -> None:
+        if self._backend is not None:
+            self._backend.close()
+            self._backend = None
+
+
+class _CameraRays(RayCaster):
+    """Per-pixel rays from a MuJoCo camera frame (not a site)."""
+
+    def __init__(self, model, cam_id, dirs_mjcam, exclude_body, max_range_m) -> None:
+        self._model, self._cam, self._dirs = model, cam_id, np.ascontiguousarray(dirs_mjcam)
+        self._exclude, self._max_range = exclude_body, max_range_m
+        self._geomid = np.empty(len(self._dirs), dtype=np.int32)
+        self._dist = np.empty(len(self._dirs), dtype=np.float64)
+        self._normal = np.empty(3 * len(self._dirs), dtype=np.float64)
+
+    def rays_world(self, data) -> np.ndarray:
+        return self._dirs @ data.cam_xmat[self._cam].reshape(3, 3).T
+
+    def cast(self, data):
+        from simnav.sensors.lidar import RAY_GROUPS
+
+        groups = RAY_GROUPS.copy()
+        groups[0] = 0
+        vec = self.rays_world(data).ravel()
+        mujoco.mj_multiRay(self._model, data, data.cam_xpos[self._cam].copy(), vec, groups, 1, self._exclude,
+                           self._geomid, self._dist, self._normal, len(self._dirs), self._max_range)
+        hit = (self._geomid >= 0) & (self._dist >= 0)
+        return np.where(hit, self._dist, 0.0), np.where(hit, self._geomid, -1), self._normal.reshape(-1, 3)
+
+
+def _use_gl(backend: str) -> bool:
+    global _gl_failure
+    if backend == "raycast":
+        return False
+    if _gl_failure is None:
+        try:
+            from mujoco.rendering.classic import gl_context
+
+            if gl_context.GLContext is None:
+                raise RuntimeError("no OpenGL platform (set MUJOCO_GL=egl)")
+            probe = gl_context.GLContext(8, 8)
+            probe.free()
+            _gl_failure = ""
+        except Exception as err:  # any EGL/driver failure means: no GL here
+            _gl_failure = f"{type(err).__name__}: {err}"
+            log.warning("OpenGL (EGL) rendering is unavailable (%s); depth cameras fall back to ray casting",
+                        _gl_failure)
+    if _gl_failure and backend == "gl":
+        from simnav.errors import SimnavError
+
+        raise SimnavError(f"depth backend 'gl' requested but OpenGL (EGL) is unavailable: {_gl_failure}")
+    return not _gl_failure
+
+
+class _GLBackend:
+    """Offscreen OpenGL rendering of one fixed camera."""
+
+    def __init__(self, model: mujoco.MjModel, cam_id: int, params) -> None:
+        from mujoco.rendering.classic import gl_context
+
+        self._w, self._h = params.width, params.height
+        self._ctx = gl_context.GLContext(model.vis.global_.offwidth, model.vis.global_.offheight)
+        self._ctx.make_current()
+        self._mjr = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._mjr)
+        self._mjr.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._model = model
+        self._scene = mujoco.MjvScene(model, maxgeom=2000)
+        self._option = mujoco.MjvOption()
+        self._cam = mujoco.MjvCamera()
+        self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._cam.fixedcamid = cam_id
+        self._rect = mujoco.MjrRect(0, 0, self._w, self._h)
+        self._seg = np.empty((self._h, self._w, 3), np.uint8)
+        self._zbuf = np.empty((self._h, self._w), np.float32)
+        near, far = np.float32(model.vis.map.znear * model.stat.extent), np.float32(model.vis.map.zfar * model.stat.extent)
+        self._far = float(far)
+        c = -(far + near) / (far - near)
+        d = -(np.float32(2) * far * near) / (far - near)
+        self._c, self._d = np.float32(-0.5) * c - np.float32(0.5), np.float32(-0.5) * d
+
+    def render(self, data: mujoco.MjData, with_rgb: bool):
+        """Depth (H, W) float64 (0 = nothing), body ids (H, W), rgb (H, W, 3) uint8 or None; row 0 = top."""
+        self._ctx.make_current()
+        mujoco.mjv_updateScene(self._model, data, self._option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL,
+                               self._scene)
+        flags = self._scene.flags
+        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
+                     mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG, mujoco.mjtRndFlag.mjRND_HAZE):
+            flags[flag] = 0
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        mujoco.mjr_render(self._rect, self._scene, self._mjr)
+        mujoco.mjr_readPixels(self._seg, self._zbuf, self._rect, self._mjr)
+        depth = self._d / (self._zbuf[::-1].astype(np.float64) + self._c)
+        body_id = self._body_ids(self._seg[::-1])
+        depth[(body_id < 0) | (depth >= self._far * 0.999)] = 0.0
+        rgb = None
+        if with_rgb:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
+            rgb = np.empty((self._h, self._w, 3), np.uint8)
+            mujoco.mjr_render(self._rect, self._scene, self._mjr)
+            mujoco.mjr_readPixels(rgb, None, self._rect, self._mjr)
+            rgb = np.ascontiguousarray(rgb[::-1])
+        return depth, body_id, rgb
+
+    def _body_ids(self, seg: np.ndarray) -> np.ndarray:
+        segid = seg[..., 0].astype(np.int32) | (seg[..., 1].astype(np.int32) << 8) | (seg[..., 2].astype(np.int32) << 16)
+        table = np.full(self._scene.ngeom + 2, -1, dtype=np.int32)
+        for g in self._scene.geoms[: self._scene.ngeom]:
+            if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                table[g.segid + 1] = self._model.geom_bodyid[g.objid]
+        return table[np.minimum(segid, len(table) - 1)]
+
+    def close(self) -> None:
+        if self._ctx is not None:
+            self._ctx.make_current()
+            self._mjr.free()
+            self._ctx.free()
+            self._ctx = None

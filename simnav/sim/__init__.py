@@ -1,0 +1,6 @@
+"""The MuJoCo simulator: scene assembly, stepping, ground truth, contacts and the simulated robot interface."""
+
+from simnav.sim.config import SimConfig
+from simnav.sim.simulator import Simulator
+
+__all__ = ["SimConfig", "Simulator"]
