@@ -64,7 +64,11 @@ def read_yaml(path: Path) -> dict[str, Any]:
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str] | None, source: str = "--set") -> dict[str, Any]:
-    """Apply dotted ``key.sub=value`` overrides (values parsed as YAML scalars) to a nested dict copy."""
+    """Apply dotted ``key.sub=value`` overrides (values parsed as YAML scalars) to a nested dict copy.
+
+    A path step into a list is an index (``sensors.1.rate_hz=15``) or the ``name`` of an item
+    (``sensors.camera.rate_hz=15``).
+    """
     result = _deep_copy(data)
     for item in overrides or []:
         if "=" not in item:
@@ -73,13 +77,38 @@ def apply_overrides(data: dict[str, Any], overrides: list[str] | None, source: s
         parts = [p for p in key.strip().split(".") if p]
         if not parts:
             raise ConfigError(f"{source}: empty key in {item!r}")
-        node = result
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise ConfigError(f"{source}: '{key}' goes through a non-mapping field '{part}'")
-        node[parts[-1]] = yaml.safe_load(raw)
+        node: Any = result
+        for depth, part in enumerate(parts[:-1]):
+            node = _child(node, part, key, source, create=True)
+        _assign(node, parts[-1], yaml.safe_load(raw), key, source)
     return result
+
+
+def _child(node: Any, part: str, key: str, source: str, create: bool) -> Any:
+    if isinstance(node, dict):
+        return node.setdefault(part, {}) if create else node[part]
+    if isinstance(node, list):
+        return node[_list_index(node, part, key, source)]
+    raise ConfigError(f"{source}: '{key}' goes through '{part}', which is not a mapping or a list")
+
+
+def _assign(node: Any, part: str, value: Any, key: str, source: str) -> None:
+    if isinstance(node, dict):
+        node[part] = value
+    elif isinstance(node, list):
+        node[_list_index(node, part, key, source)] = value
+    else:
+        raise ConfigError(f"{source}: cannot set '{key}': its parent is not a mapping or a list")
+
+
+def _list_index(items: list, part: str, key: str, source: str) -> int:
+    if part.lstrip("-").isdigit() and -len(items) <= int(part) < len(items):
+        return int(part)
+    names = [it.get("name") for it in items if isinstance(it, dict)]
+    if part in names:
+        return names.index(part)
+    raise ConfigError(f"{source}: '{key}': no list item '{part}' (indices 0..{len(items) - 1}"
+                      + (f", names {names})" if any(names) else ")"))
 
 
 def _deep_copy(data: Any) -> Any:

@@ -16,9 +16,9 @@ class SimConfig(FrozenModel):
     ``pedestrians``/``wanderers`` of None take the world's ``agents`` section.
     """
 
-    physics_dt_s: Annotated[float, Field(gt=0, le=0.02)] = 0.002
+    physics_dt_s: Annotated[float, Field(gt=0, le=0.02)] = 0.005
     control_dt_s: Annotated[float, Field(gt=0, le=1.0)] = 0.05
-    agent_dt_s: Annotated[float, Field(gt=0, le=0.2)] = 0.02
+    agent_dt_s: Annotated[float, Field(gt=0, le=0.2)] = 0.04
     pedestrians: Annotated[int, Field(ge=0, le=200)] | None = None
     wanderers: Annotated[int, Field(ge=0, le=20)] | None = None
     depth_backend: Literal["auto", "gl", "raycast"] = "auto"

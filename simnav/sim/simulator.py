@@ -94,6 +94,8 @@ class Simulator:
         self._active_contacts: set[int] = set()
         self.contact_events: list[ContactEvent] = []
         self._step_count = 0
+        self._history: deque[tuple[float, float, float, float]] = deque(maxlen=4096)
+        self._history.append((0.0, *self.pose_xy_yaw))
         self._pose_agents_at(0.0)
         mujoco.mj_forward(self.model, self.data)
 
@@ -174,6 +176,7 @@ class Simulator:
             self._step_agents()
         mujoco.mj_step(m, d)
         self._step_count += 1
+        self._history.append((self.time_s, *self.pose_xy_yaw))
         v, w = self.base_velocity()
         for s in self.sensors:
             if isinstance(s, WheelEncoders):
@@ -311,6 +314,17 @@ class Simulator:
         """Ground-truth planar pose (x m, y m, yaw rad in (-pi, pi])."""
         x, y, yaw = self.data.qpos[self.index.qpos_adr]
         return float(x), float(y), float(math.atan2(math.sin(yaw), math.cos(yaw)))
+
+    def T_world_base_at(self, stamp_s: float) -> np.ndarray:
+        """(4, 4) ground-truth base pose at a past time ``stamp_s`` (within the last few seconds), s."""
+        times = [h[0] for h in self._history]
+        k = int(np.clip(np.searchsorted(times, stamp_s - _EPS_S), 0, len(times) - 1))
+        _, x, y, yaw = self._history[k]
+        c, s = math.cos(yaw), math.sin(yaw)
+        T = np.eye(4)
+        T[:2, :2] = [[c, -s], [s, c]]
+        T[:2, 3] = [x, y]
+        return T
 
     def base_velocity(self) -> tuple[float, float]:
         """Ground-truth forward speed (m/s, along base x) and yaw rate (rad/s)."""

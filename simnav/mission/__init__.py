@@ -1,0 +1,1 @@
+"""Missions: driving a robot through a world and recording or reporting what happened."""
