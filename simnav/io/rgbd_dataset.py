@@ -40,7 +40,7 @@ DEPTH_SCALE = 5000.0
 TUM_FR1_K = np.array([[517.3, 0.0, 318.6], [0.0, 516.5, 255.3], [0.0, 0.0, 1.0]])
 """Intrinsics of the TUM 'freiburg1' camera, used when a dataset has no camera.yaml."""
 MOTION_KEY = "velocity_optical"
-_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]  # fast, lossless
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 _STREAMS = {
     "rgb": ("rgb.txt", "color images", "png"),
@@ -60,7 +60,7 @@ def stamp_text(stamp_s: float) -> str:
 
 
 def save_pixel_motion(path: str | Path, velocity_optical: np.ndarray) -> None:
-    """Writes a pixel-motion ``.npz`` deterministically (fixed zip dates, DEFLATE level 6).
+    """Writes a pixel-motion ``.npz`` deterministically (fixed zip dates, DEFLATE level 1).
 
     Args:
         path: destination ``.npz`` file.
@@ -76,7 +76,7 @@ def save_pixel_motion(path: str | Path, velocity_optical: np.ndarray) -> None:
     info.create_system = 3
     info.external_attr = 0o644 << 16
     with zipfile.ZipFile(path, "w") as zf:
-        zf.writestr(info, buf.getvalue(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=6)
+        zf.writestr(info, buf.getvalue(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
 
 
 def load_pixel_motion(path: str | Path) -> np.ndarray:

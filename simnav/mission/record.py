@@ -18,8 +18,10 @@ The same settings and seed give the same bytes.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -35,6 +37,9 @@ from simnav.robot.spec import RobotSpec
 from simnav.sensors.readings import LaserScan, PointCloud, Reading, RGBDFrame, WheelTicks
 from simnav.sim import SimConfig, Simulator
 from simnav.world.schema import WorldSpec
+
+
+MAX_FRAMES_IN_FLIGHT = 32
 
 
 class RecordSettings(FrozenModel):
@@ -74,7 +79,7 @@ def record(world: WorldSpec, robot: RobotSpec, out_dir: Path, settings: RecordSe
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     _write_configs(out_dir, world, robot, settings)
-    sim = Simulator(world, robot, settings.sim, seed=settings.seed)
+    sim = Simulator(world, robot, settings.sim.model_copy(update={"lockstep": False}), seed=settings.seed)
     follower = RoadmapFollower(sim.roadmap, np.array(sim.pose_xy_yaw[:2]),
                                np.random.default_rng(np.random.SeedSequence([settings.seed, 1])),
                                robot.drive.max_v_m_s, robot.drive.max_w_rad_s)
@@ -95,6 +100,9 @@ def record(world: WorldSpec, robot: RobotSpec, out_dir: Path, settings: RecordSe
             last_xy = xy
             if progress is not None:
                 progress(sim.time_s)
+        for reading in sim.flush():
+            writers.write(reading)
+            summary.readings[reading.sensor] = summary.readings.get(reading.sensor, 0) + 1
         writers.contacts(sim.contact_events)
     summary.wall_time_s = time.perf_counter() - started
     summary.sim_time_s = sim.time_s
@@ -120,11 +128,17 @@ class _Writers:
         self._cameras: dict[str, tuple[RGBDDatasetWriter, TumWriter]] = {}
         self._wheels = open(out_dir / "wheels.txt", "w", encoding="ascii", newline="\n")  # noqa: SIM115
         self._wheels.write("# timestamp left_ticks right_ticks\n")
+        # image files are encoded on one background thread (PNG/zlib release the GIL), in submission order
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simnav-writer")
+        self._in_flight = threading.BoundedSemaphore(MAX_FRAMES_IN_FLIGHT)
+        self._futures: list[Future] = []
 
     def __enter__(self) -> _Writers:
         return self
 
     def __exit__(self, *exc) -> None:
+        self._pool.shutdown(wait=True)
+        self._raise_failed(all_done=True)
         self._gt.close()
         self._wheels.close()
         for w in self._lasers.values():
@@ -172,8 +186,27 @@ class _Writers:
             writers = self._cameras[frame.sensor] = (RGBDDatasetWriter(folder, overwrite=True),
                                                      TumWriter(folder / "groundtruth.txt"))
         rgbd, gt = writers
-        rgbd.write_frame(frame)
-        gt.write(frame.stamp_s, self._sim.T_world_base_at(frame.stamp_s) @ frame.T_base_sensor)
+        T_world_optical = self._sim.T_world_base_at(frame.stamp_s) @ frame.T_base_sensor
+        self._raise_failed()
+        self._in_flight.acquire()
+        self._futures.append(self._pool.submit(self._write_frame_now, rgbd, gt, frame, T_world_optical))
+
+    def _write_frame_now(self, rgbd: RGBDDatasetWriter, gt: TumWriter, frame: RGBDFrame, T: np.ndarray) -> None:
+        try:
+            rgbd.write_frame(frame)
+            gt.write(frame.stamp_s, T)
+        finally:
+            self._in_flight.release()
+
+    def _raise_failed(self, all_done: bool = False) -> None:
+        """Re-raise the first error of a background write (checked before each submission and at the end)."""
+        pending = []
+        for future in self._futures:
+            if future.done() or all_done:
+                future.result()
+            else:
+                pending.append(future)
+        self._futures = pending
 
     def contacts(self, events) -> None:
         lines = ["# timestamp kind other x y z depth"]

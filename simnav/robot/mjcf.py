@@ -1,8 +1,9 @@
-"""The MJCF body of a robot: a planar base (x, y slides and a yaw hinge with velocity actuators) carrying the
-robot's prisms as convex mesh geoms, one site per lidar and one camera per RGB-D sensor.
+"""The MJCF body of a robot: a planar base (x, y slides and a yaw hinge) carrying the robot's prisms as convex
+mesh geoms, one site per lidar and one camera per RGB-D sensor.
 
-The slides are world-aligned, so the simulator maps the body command (v, w) to joint velocities
-``(v cos(yaw), v sin(yaw), w)`` every physics step.
+Three velocity servos act through a site at the base origin, in the base frame: forward speed, lateral speed
+(always commanded to 0: the wheels' non-holonomic constraint) and yaw rate. The control is therefore the body
+command ``(v, 0, w)`` itself, constant between commands, so physics can run many steps per call.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from simnav.sensors.presets import resolve_rgbd
 from simnav.world.mjcf import CONTYPE_MOVING, CONTYPE_STATIC, CONTYPE_ROBOT, GROUP_ROBOT
 
 ROBOT_BODY = "robot"
+BASE_SITE = "robot_base"
 JOINTS = ("robot_x", "robot_y", "robot_yaw")
 TRACKING_TIME_CONSTANT_S = 0.02
 
@@ -33,6 +35,7 @@ def add_robot(spec: mujoco.MjSpec, robot: RobotSpec) -> None:
     for name, axis, kind in zip(JOINTS, ([1, 0, 0], [0, 1, 0], [0, 0, 1]),
                                 (mujoco.mjtJoint.mjJNT_SLIDE,) * 2 + (mujoco.mjtJoint.mjJNT_HINGE,), strict=True):
         body.add_joint(name=name, type=kind, axis=axis, damping=0.0)
+    body.add_site(name=BASE_SITE, pos=[0, 0, 0], size=[0.01, 0, 0], group=GROUP_ROBOT)
     for k, prism in enumerate(robot.prisms):
         _add_prism(spec, body, prism, k)
     _add_actuators(spec, robot)
@@ -78,8 +81,10 @@ def _add_actuators(spec: mujoco.MjSpec, robot: RobotSpec) -> None:
     xs = [x for p in robot.prisms for x, _ in p.polygon]
     ys = [y for p in robot.prisms for _, y in p.polygon]
     izz = robot.mass_kg * ((max(xs) - min(xs)) ** 2 + (max(ys) - min(ys)) ** 2) / 12
-    for joint, inertia in zip(JOINTS, (robot.mass_kg, robot.mass_kg, izz), strict=True):
-        act = spec.add_actuator(name=f"{joint}_vel", target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    axes = {"forward": [1, 0, 0, 0, 0, 0], "lateral": [0, 1, 0, 0, 0, 0], "yaw": [0, 0, 0, 0, 0, 1]}
+    for (name, gear), inertia in zip(axes.items(), (robot.mass_kg, robot.mass_kg, izz), strict=True):
+        act = spec.add_actuator(name=f"robot_{name}", target=BASE_SITE, trntype=mujoco.mjtTrn.mjTRN_SITE)
+        act.gear = gear
         act.set_to_velocity(kv=inertia / TRACKING_TIME_CONSTANT_S)
 
 

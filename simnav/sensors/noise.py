@@ -53,15 +53,16 @@ def grazing_mask(points_optical: np.ndarray, max_angle_rad: float) -> np.ndarray
     (H, W, 3) points; pixels on depth discontinuities get arbitrary normals and are dropped too, as real
     structured-light and ToF cameras do at object edges.
     """
-    p = points_optical
+    p = points_optical.astype(np.float32, copy=False)
     du = np.zeros_like(p)
     dv = np.zeros_like(p)
     du[:, 1:-1] = p[:, 2:] - p[:, :-2]
     dv[1:-1, :] = p[2:, :] - p[:-2, :]
     normal = np.cross(du, dv)
-    norm_n = np.linalg.norm(normal, axis=-1)
-    norm_p = np.linalg.norm(p, axis=-1)
-    cos_angle = np.abs(np.einsum("hwc,hwc->hw", normal, p)) / np.maximum(norm_n * norm_p, 1e-12)
-    grazing = cos_angle < np.cos(max_angle_rad)
-    grazing[norm_n == 0] = False  # image border: no neighbours to judge
+    n2 = np.einsum("hwc,hwc->hw", normal, normal)
+    p2 = np.einsum("hwc,hwc->hw", p, p)
+    dot = np.einsum("hwc,hwc->hw", normal, p)
+    # |cos| < cos(max) <=> dot^2 < cos(max)^2 |n|^2 |p|^2 (no square roots)
+    grazing = dot * dot < np.float32(np.cos(max_angle_rad) ** 2) * n2 * p2
+    grazing[n2 == 0] = False  # image border or flat neighbourhood: no normal to judge
     return grazing

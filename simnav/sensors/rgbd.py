@@ -15,6 +15,7 @@ limits or seen at grazing angles are null (0).
 from __future__ import annotations
 
 import logging
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import mujoco
 import numpy as np
@@ -53,7 +54,12 @@ class RGBDCamera:
         self._model = model
         self._cam_id = model.camera(spec.name).id
         self._rays_optical = self.pinhole.rays_optical()  # (H, W, 3) with z = 1
-        self._backend = _GLBackend(model, self._cam_id, self.params) if _use_gl(backend) else None
+        # frames are made on one worker thread that owns the GL context and its own MjData copy of the state
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"simnav-{spec.name}")
+        self._data = mujoco.MjData(model)
+        self._backend = None
+        if _use_gl(backend):
+            self._backend = self._worker.submit(_GLBackend, model, self._cam_id, self.params).result()
         if self._backend is None:
             dirs = self._rays_optical / np.linalg.norm(self._rays_optical, axis=-1, keepdims=True)
             self._unit_z = dirs[..., 2]
@@ -67,12 +73,27 @@ class RGBDCamera:
 
     def capture(self, data: mujoco.MjData, stamp_s: float, rng: np.random.Generator,
                 body_twists_world: np.ndarray) -> RGBDFrame:
-        """Take a frame at the current state of ``data``.
+        """Take a frame at the current state of ``data`` (blocking; see :meth:`submit`)."""
+        return self.submit(data, stamp_s, rng, body_twists_world).result()
+
+    def submit(self, data: mujoco.MjData, stamp_s: float, rng: np.random.Generator,
+               body_twists_world: np.ndarray) -> Future[RGBDFrame]:
+        """Snapshot the state of ``data`` now and make the frame in the background.
+
+        Frames are made in submission order, so noise drawn from ``rng`` is the same as in sequential capture.
 
         Args:
             body_twists_world: (nbody, 6) linear velocity of each body's origin and its angular velocity, both in
                 the world frame (m/s, rad/s); used for the per-pixel ground-truth motion.
         """
+        state = (data.qpos.copy(), data.mocap_pos.copy(), data.mocap_quat.copy())
+        return self._worker.submit(self._make_frame, state, stamp_s, rng, body_twists_world.copy())
+
+    def _make_frame(self, state, stamp_s: float, rng: np.random.Generator, twists: np.ndarray) -> RGBDFrame:
+        data = self._data
+        data.qpos[:], data.mocap_pos[:], data.mocap_quat[:] = state
+        mujoco.mj_kinematics(self._model, data)
+        mujoco.mj_camlight(self._model, data)
         if self._backend is not None:
             depth, body_id, rgb = self._backend.render(data, self.params.rgb)
         else:
@@ -83,7 +104,7 @@ class RGBDCamera:
         ideal[grazing_mask(points, p.grazing_angle_rad)] = 0.0
         noisy = depth_noise(ideal, rng, p.noise_k_per_m, p.depth_quantum_m, p.dropout_prob)
         body_id = np.where(depth > 0, body_id, -1).astype(np.int32)
-        velocity = self._pixel_velocity(data, points, body_id, body_twists_world)
+        velocity = self._pixel_velocity(data, points, body_id, twists)
         return RGBDFrame(sensor=self.name, stamp_s=stamp_s, depth_m=noisy, rgb=rgb, K=self.pinhole.K,
                          T_base_sensor=self.T_base_sensor, body_id=body_id, velocity_optical=velocity)
 
@@ -127,9 +148,11 @@ class RGBDCamera:
         return depth, body_id, rgb
 
     def close(self) -> None:
+        """Release the GL context (on its own thread) and stop the worker."""
         if self._backend is not None:
-            self._backend.close()
+            self._worker.submit(self._backend.close).result()
             self._backend = None
+        self._worker.shutdown(wait=True)
 
 
 class _CameraRays(RayCaster):
@@ -162,16 +185,8 @@ def _use_gl(backend: str) -> bool:
     if backend == "raycast":
         return False
     if _gl_failure is None:
-        try:
-            from mujoco.rendering.classic import gl_context
-
-            if gl_context.GLContext is None:
-                raise RuntimeError("no OpenGL platform (set MUJOCO_GL=egl)")
-            probe = gl_context.GLContext(8, 8)
-            probe.free()
-            _gl_failure = ""
-        except Exception as err:  # any EGL/driver failure means: no GL here
-            _gl_failure = f"{type(err).__name__}: {err}"
+        _gl_failure = _probe_gl()
+        if _gl_failure:
             log.warning("OpenGL (EGL) rendering is unavailable (%s); depth cameras fall back to ray casting",
                         _gl_failure)
     if _gl_failure and backend == "gl":
@@ -179,6 +194,29 @@ def _use_gl(backend: str) -> bool:
 
         raise SimnavError(f"depth backend 'gl' requested but OpenGL (EGL) is unavailable: {_gl_failure}")
     return not _gl_failure
+
+
+def _probe_gl() -> str:
+    """'' if an offscreen MuJoCo render context can be made here, else the reason it cannot."""
+    import os
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            from mujoco.rendering.classic import gl_context
+
+            if gl_context.GLContext is None:
+                raise RuntimeError("no OpenGL platform")
+            model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='1'/></worldbody></mujoco>")
+            ctx = gl_context.GLContext(8, 8)
+            ctx.make_current()
+            mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value).free()
+            ctx.free()
+        return ""
+    except Exception as err:  # any platform/driver failure means: no GL here
+        hint = "" if os.environ.get("MUJOCO_GL") == "egl" else "; set MUJOCO_GL=egl before importing mujoco"
+        return f"{type(err).__name__}: {err}{hint}"
 
 
 class _GLBackend:

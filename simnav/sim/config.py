@@ -13,7 +13,10 @@ class SimConfig(FrozenModel):
     """How the world is stepped.
 
     The physics step is fixed; the control period and the agent update period must be whole multiples of it.
-    ``pedestrians``/``wanderers`` of None take the world's ``agents`` section.
+    ``pedestrians``/``wanderers`` of None take the world's ``agents`` section. With ``lockstep`` (the default, for
+    closed loops) every reading is delivered exactly at its stamp plus latency; without it, camera frames rendered
+    in the background are delivered when ready (never early, always in order) so that offline recording runs
+    rendering in parallel with physics.
     """
 
     physics_dt_s: Annotated[float, Field(gt=0, le=0.02)] = 0.005
@@ -23,6 +26,7 @@ class SimConfig(FrozenModel):
     wanderers: Annotated[int, Field(ge=0, le=20)] | None = None
     depth_backend: Literal["auto", "gl", "raycast"] = "auto"
     spawn: Annotated[int, Field(ge=0)] | None = None
+    lockstep: bool = True
 
     @model_validator(mode="after")
     def _multiples(self) -> SimConfig:

@@ -69,8 +69,8 @@ def _set_options(spec: mujoco.MjSpec, robot: RobotSpec, physics_dt_s: float) -> 
     spec.visual.map.zfar = 60.0
     spec.visual.quality.shadowsize = 0
     cams = [resolve_rgbd(s) for s in robot.sensors if isinstance(s, RGBDSensor)]
-    spec.visual.global_.offwidth = max([640] + [c.width for c in cams])
-    spec.visual.global_.offheight = max([480] + [c.height for c in cams])
+    spec.visual.global_.offwidth = max([c.width for c in cams], default=64)
+    spec.visual.global_.offheight = max([c.height for c in cams], default=64)
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
     spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
     light = spec.worldbody.add_light(name="sun", pos=[0, 0, 10], dir=[0.2, 0.3, -1.0], castshadow=False)

@@ -12,6 +12,7 @@ import heapq
 import logging
 import math
 from collections import deque
+from concurrent.futures import Future
 
 import mujoco
 import numpy as np
@@ -32,6 +33,7 @@ from simnav.world.schema import WorldSpec
 
 log = logging.getLogger(__name__)
 _EPS_S = 1e-9
+MOTOR_PERIOD_S = 0.01  # the motor controller applies its acceleration ramp at 100 Hz
 
 
 class Simulator:
@@ -57,6 +59,7 @@ class Simulator:
         self.roadmap = RoadmapGraph.from_spec(world.roadmap)
         self._walls_xy = obstacle_segments(world)
         self.robot_radius_m = _circumradius(robot)
+        self._motor_substeps = max(1, round(MOTOR_PERIOD_S / self.config.physics_dt_s))
         self.sensors = self._make_sensors()
         self.reset(seed)
 
@@ -122,14 +125,14 @@ class Simulator:
         self._agent_time_s = 0.0
 
     def _reset_drive(self) -> None:
-        self._commands: deque[tuple[float, float, float]] = deque([(-math.inf, 0.0, 0.0)])
+        self._commands: deque[tuple[float, float, float]] = deque([(-math.inf, 0.0, 0.0)])  # (apply at s, v, w)
         self._v_m_s = 0.0
         self._w_rad_s = 0.0
         self.data.ctrl[:] = 0.0
 
     def _reset_sensors(self) -> None:
         self._next_capture_s = [0.0 for _ in self.sensors]
-        self._pending: list[tuple[float, int, Reading]] = []
+        self._pending: list[tuple[float, int, Reading | Future]] = []
         self._pending_seq = 0
         self._latest: dict[str, Reading] = {}
         for s in self.sensors:
@@ -160,41 +163,60 @@ class Simulator:
         drive = self.robot.drive
         v = float(np.clip(v_m_s, -drive.max_v_m_s, drive.max_v_m_s))
         w = float(np.clip(w_rad_s, -drive.max_w_rad_s, drive.max_w_rad_s))
-        self._commands.append((self.time_s, v, w))
+        self._commands.append((self.time_s + drive.command_latency_s, v, w))
         delivered: list[Reading] = []
-        for _ in range(self.config.substeps):
-            self._physics_step()
-            delivered += self._deliver()
+        end = self._step_count + self.config.substeps
+        while self._step_count < end:
+            delivered += self._advance(self._steps_to_next_event(end))
         return delivered
 
-    def _physics_step(self) -> None:
-        m, d, dt = self.model, self.data, self.config.physics_dt_s
-        # motor model: latency, then acceleration limits; world-aligned slides follow the heading
-        self._apply_drive(dt)
-        # agents move on their own period (their state is ahead; poses are interpolated)
+    def _steps_to_next_event(self, end: int) -> int:
+        """Physics steps until something must happen in Python: agents, a sensor, the motor, the period end."""
+        k, dt = self._step_count, self.config.physics_dt_s
+        agent = self.config.agent_substeps
+        events = [end, (k // agent + 1) * agent]
+        events += [max(math.ceil(t / dt - 1e-6), k + 1) for t in self._next_capture_s]
+        if len(self._commands) > 1:
+            events.append(max(math.ceil(self._commands[1][0] / dt - 1e-6), k + 1))
+        if self._ramping():
+            events.append((k // self._motor_substeps + 1) * self._motor_substeps)
+        return min(events) - k
+
+    def _advance(self, n: int) -> list[Reading]:
+        """Run ``n`` physics steps with constant controls, then do what is due at the new time."""
+        # agents move on their own period (their state is one period ahead; poses are interpolated)
         if self._step_count % self.config.agent_substeps == 0:
             self._step_agents()
-        mujoco.mj_step(m, d)
-        self._step_count += 1
-        self._history.append((self.time_s, *self.pose_xy_yaw))
-        v, w = self.base_velocity()
+        # motor model: latency, then acceleration limits at the motor controller's rate
+        self._apply_drive()
+        v0, w0 = self.base_velocity()
+        mujoco.mj_step(self.model, self.data, nstep=n)
+        self._step_count += n
+        v1, w1 = self.base_velocity()
         for s in self.sensors:
             if isinstance(s, WheelEncoders):
-                s.integrate(v, w, dt)
+                s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * self.config.physics_dt_s)
+        self._history.append((self.time_s, *self.pose_xy_yaw))
         self._check_contacts()
         self._capture_due()
+        return self._deliver()
 
-    def _apply_drive(self, dt: float) -> None:
+    def _ramping(self) -> bool:
+        _, v_target, w_target = self._commands[0]
+        return v_target != self._v_m_s or w_target != self._w_rad_s
+
+    def _apply_drive(self) -> None:
         drive = self.robot.drive
-        now = self.time_s - drive.command_latency_s
+        now = self.time_s
         while len(self._commands) > 1 and self._commands[1][0] <= now + _EPS_S:
             self._commands.popleft()
         _, v_target, w_target = self._commands[0]
-        dv_max, dw_max = drive.max_acc_m_s2 * dt, drive.max_ang_acc_rad_s2 * dt
-        self._v_m_s += float(np.clip(v_target - self._v_m_s, -dv_max, dv_max))
-        self._w_rad_s += float(np.clip(w_target - self._w_rad_s, -dw_max, dw_max))
-        yaw = self.data.qpos[self.index.qpos_adr[2]]
-        self.data.ctrl[:3] = [self._v_m_s * math.cos(yaw), self._v_m_s * math.sin(yaw), self._w_rad_s]
+        if self._step_count % self._motor_substeps == 0 or not self._ramping():
+            dt = self._motor_substeps * self.config.physics_dt_s
+            dv_max, dw_max = drive.max_acc_m_s2 * dt, drive.max_ang_acc_rad_s2 * dt
+            self._v_m_s += float(np.clip(v_target - self._v_m_s, -dv_max, dv_max))
+            self._w_rad_s += float(np.clip(w_target - self._w_rad_s, -dw_max, dw_max))
+        self.data.ctrl[:3] = [self._v_m_s, 0.0, self._w_rad_s]
 
     def _step_agents(self) -> None:
         dt = self.config.agent_dt_s
@@ -250,7 +272,7 @@ class Simulator:
                 reading = sensor.capture(t, rng)
             elif isinstance(sensor, RGBDCamera):
                 twists = self.body_twists_world() if twists is None else twists
-                reading = sensor.capture(self.data, t, rng, twists)
+                reading = sensor.submit(self.data, t, rng, twists)
             else:
                 reading = sensor.capture(self.data, t, rng)
             self._next_capture_s[k] += sensor.period_s
@@ -258,12 +280,44 @@ class Simulator:
             self._pending_seq += 1
 
     def _deliver(self) -> list[Reading]:
+        """Readings due by now, in order. Camera frames are made in the background (futures): in lockstep mode
+        a due frame is waited for; otherwise delivery pauses at the first frame not finished yet."""
         out = []
         while self._pending and self._pending[0][0] <= self.time_s + _EPS_S:
-            reading = heapq.heappop(self._pending)[2]
-            self._latest[reading.sensor] = reading
-            out.append(reading)
+            item = self._pending[0][2]
+            if isinstance(item, Future) and not (self.config.lockstep or item.done()):
+                break
+            heapq.heappop(self._pending)
+            out.append(self._receive(item))
         return out
+
+    def flush(self) -> list[Reading]:
+        """Wait for every reading captured so far (also those not due yet) and return them in order."""
+        out = []
+        while self._pending:
+            out.append(self._receive(heapq.heappop(self._pending)[2]))
+        return out
+
+    def _receive(self, item: Reading | Future) -> Reading:
+        reading = item.result() if isinstance(item, Future) else item
+        self._latest[reading.sensor] = reading
+        return reading
+
+    def capture_now(self, sensor: str) -> Reading:
+        """Take a reading of ``sensor`` at the current time, outside its schedule (its noise stream advances)."""
+        names = [s.name for s in self.sensors]
+        if sensor not in names:
+            raise SimnavError(f"robot '{self.robot.name}' has no sensor '{sensor}'; available: {names}")
+        k = names.index(sensor)
+        s, rng, t = self.sensors[k], self._rng_sensors[k], self.time_s
+        self._pose_agents_at(t)
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+        if isinstance(s, WheelEncoders):
+            return s.capture(t, rng)
+        if isinstance(s, RGBDCamera):
+            return s.capture(self.data, t, rng, self.body_twists_world())
+        return s.capture(self.data, t, rng)
 
     def latest(self, sensor: str) -> Reading | None:
         """The most recent delivered reading of ``sensor`` (None before its first one)."""
@@ -317,8 +371,9 @@ class Simulator:
 
     def T_world_base_at(self, stamp_s: float) -> np.ndarray:
         """(4, 4) ground-truth base pose at a past time ``stamp_s`` (within the last few seconds), s."""
-        times = [h[0] for h in self._history]
-        k = int(np.clip(np.searchsorted(times, stamp_s - _EPS_S), 0, len(times) - 1))
+        k = len(self._history) - 1
+        while k > 0 and self._history[k][0] > stamp_s + _EPS_S:
+            k -= 1
         _, x, y, yaw = self._history[k]
         c, s = math.cos(yaw), math.sin(yaw)
         T = np.eye(4)

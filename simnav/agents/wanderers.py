@@ -1,0 +1,206 @@
+"""Other robots: kinematic unicycles doing a random walk along roadmap edges.
+
+World frame, x/y on the floor, SI units. Each robot drives toward its next node, turning at a limited yaw
+rate and slowing down while its heading is off, and stops while something is close ahead. On reaching a node
+it picks a random neighbour, not the node it came from unless that is the only one. A robot blocked for a few
+seconds turns back, so two robots meeting head-on on an edge do not wait forever. Motion is semi-implicit
+Euler: ``yaw_{k+1} = wrap(yaw_k + ω·dt)``, ``v_{k+1} = v·(cos yaw_{k+1}, sin yaw_{k+1})``,
+``x_{k+1} = x_k + v_{k+1}·dt``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from simnav.agents.crowd import read_only_view, wrap_angle
+from simnav.agents.roadmap import RoadmapGraph
+
+MAX_YAW_RATE_RAD_S = 1.5
+HEADING_GAIN_1_S = 2.5
+STOP_DISTANCE_M = 1.0
+STOP_HALF_ANGLE_RAD = math.radians(45.0)
+NODE_REACHED_M = 0.1
+BLOCKED_TIMEOUT_S = 3.0
+SPAWN_GAP_M = 0.2
+
+
+class Wanderers:
+    """Robots wandering along a roadmap.
+
+    Args:
+        roadmap: graph whose edges the robots follow.
+        count: number of robots N.
+        rng: source of all randomness (spawn nodes, next nodes).
+        speed_m_s: cruising speed.
+        radius_m: body radius.
+        keep_out: (K, 3) circles ``[x, y, radius]`` (metres) where no robot may spawn, or None.
+
+    Raises:
+        ValueError: when no free spot is left for a robot (nodes first, then points along edges).
+    """
+
+    def __init__(
+        self,
+        roadmap: RoadmapGraph,
+        count: int,
+        rng: np.random.Generator,
+        speed_m_s: float = 0.5,
+        radius_m: float = 0.3,
+        keep_out: np.ndarray | None = None,
+    ) -> None:
+        self._roadmap = roadmap
+        self._rng = rng
+        self._speed_m_s = speed_m_s
+        self._radius_m = radius_m
+        keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
+        spots, prev, nxt = self._spawn(int(count), keep)
+        self._pos = np.array(spots, dtype=float).reshape(-1, 2)
+        self._prev = np.array(prev, dtype=np.int64)
+        self._next = np.array(nxt, dtype=np.int64)
+        self._yaw = np.array([self._heading_to(k) for k in range(len(spots))])
+        self._vel = np.zeros_like(self._pos)
+        self._yaw_rate = np.zeros(len(spots))
+        self._blocked_s = np.zeros(len(spots))
+
+    @property
+    def count(self) -> int:
+        """Number of robots N."""
+        return len(self._pos)
+
+    @property
+    def radius_m(self) -> float:
+        """Body radius, metres."""
+        return self._radius_m
+
+    @property
+    def positions_xy(self) -> np.ndarray:
+        """(N, 2) read-only centres, world frame, metres."""
+        return read_only_view(self._pos)
+
+    @property
+    def yaws_rad(self) -> np.ndarray:
+        """(N,) read-only headings, rad in [-π, π)."""
+        return read_only_view(self._yaw)
+
+    @property
+    def velocities_xy(self) -> np.ndarray:
+        """(N, 2) read-only velocities of the last step, m/s."""
+        return read_only_view(self._vel)
+
+    @property
+    def yaw_rates_rad_s(self) -> np.ndarray:
+        """(N,) read-only yaw rates of the last step, rad/s."""
+        return read_only_view(self._yaw_rate)
+
+    @property
+    def next_nodes(self) -> np.ndarray:
+        """(N,) node each robot drives to (a copy)."""
+        return self._next.copy()
+
+    @property
+    def previous_nodes(self) -> np.ndarray:
+        """(N,) node each robot comes from (a copy)."""
+        return self._prev.copy()
+
+    def step(self, dt_s: float, obstacles_xy: np.ndarray | None = None) -> None:
+        """Advance every robot by ``dt_s`` seconds.
+
+        Args:
+            dt_s: time step, seconds (> 0).
+            obstacles_xy: (P, 2) positions (metres) of other moving things: people, the main robot. The other
+                wanderers are taken into account as well.
+        """
+        if dt_s <= 0:
+            raise ValueError(f"dt_s must be positive, got {dt_s}")
+        if self.count == 0:
+            return
+        to_next = self._roadmap.nodes_xy[self._next] - self._pos
+        dist = np.linalg.norm(to_next, axis=1)
+        error = np.where(dist > 1e-6, wrap_angle(np.arctan2(to_next[:, 1], to_next[:, 0]) - self._yaw), 0.0)
+        turn = np.minimum(np.abs(error) * min(HEADING_GAIN_1_S, 1.0 / dt_s), MAX_YAW_RATE_RAD_S)
+        rate = np.sign(error) * turn  # never past the heading within one step
+        speed = self._speed_m_s * np.maximum(np.cos(error), 0.0) ** 2
+        speed = np.minimum(speed, dist / dt_s)
+        blocked = self._blocked(obstacles_xy)
+        speed[blocked] = 0.0
+        self._yaw = wrap_angle(self._yaw + rate * dt_s)
+        self._yaw_rate = rate
+        self._vel = speed[:, None] * np.stack([np.cos(self._yaw), np.sin(self._yaw)], axis=1)
+        self._pos = self._pos + self._vel * dt_s
+        self._update_nodes(blocked, dt_s)
+
+    def _blocked(self, obstacles_xy: np.ndarray | None) -> np.ndarray:
+        """(N,) True where a point lies within STOP_DISTANCE_M ahead in the ±45° cone."""
+        points = self._pos
+        if obstacles_xy is not None:
+            points = np.concatenate([np.asarray(obstacles_xy, dtype=float).reshape(-1, 2), points])
+        rel = points[None, :, :] - self._pos[:, None, :]
+        dist = np.linalg.norm(rel, axis=2)
+        bearing = wrap_angle(np.arctan2(rel[..., 1], rel[..., 0]) - self._yaw[:, None])
+        close = (dist <= STOP_DISTANCE_M) & (dist > 1e-9)  # a robot does not block itself
+        ahead = close & (np.abs(bearing) <= STOP_HALF_ANGLE_RAD)
+        return np.any(ahead, axis=1)
+
+    def _update_nodes(self, blocked: np.ndarray, dt_s: float) -> None:
+        self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
+        for k in np.nonzero(self._blocked_s >= BLOCKED_TIMEOUT_S)[0]:
+            self._prev[k], self._next[k] = self._next[k], self._prev[k]
+            self._blocked_s[k] = 0.0
+        dist = np.linalg.norm(self._roadmap.nodes_xy[self._next] - self._pos, axis=1)
+        for k in np.nonzero(dist < NODE_REACHED_M)[0]:
+            node = int(self._next[k])
+            self._next[k] = self._pick_next(node, int(self._prev[k]))
+            self._prev[k] = node
+
+    def _pick_next(self, node: int, previous: int | None) -> int:
+        options = self._roadmap.neighbors(node)
+        if not options:
+            return node
+        forward = [n for n in options if n != previous]
+        options = forward or options
+        return int(options[int(self._rng.integers(len(options)))])
+
+    def _heading_to(self, k: int) -> float:
+        d = self._roadmap.nodes_xy[self._next[k]] - self._pos[k]
+        if np.hypot(d[0], d[1]) < 1e-9:
+            return float(self._rng.uniform(-math.pi, math.pi))
+        return math.atan2(d[1], d[0])
+
+    def _spawn(self, count: int, keep_out: np.ndarray) -> tuple[list[np.ndarray], list[int], list[int]]:
+        """Spots (xy, previous node, next node): free nodes first, then random points along edges."""
+        nodes_xy = self._roadmap.nodes_xy
+        spots: list[np.ndarray] = []
+        prev: list[int] = []
+        order = self._rng.permutation(len(nodes_xy))
+        degree = np.array([len(self._roadmap.neighbors(int(n))) for n in order])
+        for node in np.concatenate([order[degree > 0], order[degree == 0]]):  # prefer nodes with an edge
+            if len(spots) == count:
+                break
+            if self._free(nodes_xy[node], spots, keep_out):
+                spots.append(nodes_xy[node].astype(float))
+                prev.append(int(node))
+        nxt = [self._pick_next(n, None) for n in prev]
+        edges = self._roadmap.edges
+        for _ in range(50 * count if edges else 0):
+            if len(spots) == count:
+                break
+            i, j = edges[int(self._rng.integers(len(edges)))]
+            if self._rng.uniform() < 0.5:
+                i, j = j, i
+            xy = nodes_xy[i] + self._rng.uniform() * (nodes_xy[j] - nodes_xy[i])
+            if self._free(xy, spots, keep_out):
+                spots.append(xy)
+                prev.append(int(i))
+                nxt.append(int(j))
+        if len(spots) < count:
+            raise ValueError(f"only {len(spots)} free spots on the roadmap for {count} wandering robots")
+        return spots, prev, nxt
+
+    def _free(self, xy: np.ndarray, spots: list[np.ndarray], keep_out: np.ndarray) -> bool:
+        keep_gap = np.linalg.norm(keep_out[:, :2] - xy, axis=1) - keep_out[:, 2]
+        if np.any(keep_gap < self._radius_m):
+            return False
+        too_close = 2 * self._radius_m + SPAWN_GAP_M
+        return not spots or float(np.min(np.linalg.norm(np.array(spots) - xy, axis=1))) >= too_close

@@ -1,0 +1,154 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simnav.agents import Crowd, RoadmapGraph, SocialForceParams
+
+DT = 0.02
+ROOM_W, ROOM_H = 10.0, 8.0
+ROOM_WALLS = np.array(
+    [
+        [[0.0, 0.0], [ROOM_W, 0.0]],
+        [[ROOM_W, 0.0], [ROOM_W, ROOM_H]],
+        [[ROOM_W, ROOM_H], [0.0, ROOM_H]],
+        [[0.0, ROOM_H], [0.0, 0.0]],
+        [[5.0, 0.0], [5.0, 5.0]],  # interior wall, 3 m gap at the top
+    ]
+)
+
+
+def _room_roadmap() -> RoadmapGraph:
+    xs, ys = [1.0, 2.5, 4.0, 6.0, 7.5, 9.0], [1.0, 2.5, 4.0, 5.5, 7.0]
+    index = {(i, j): i * len(ys) + j for i in range(len(xs)) for j in range(len(ys))}
+    nodes = np.array([(x, y) for x in xs for y in ys])
+    edges = []
+    for (i, j), k in index.items():
+        if j + 1 < len(ys):
+            edges.append((k, index[i, j + 1]))
+        crosses_wall = xs[i] < 5.0 < xs[min(i + 1, len(xs) - 1)] and ys[j] < 5.0
+        if i + 1 < len(xs) and not crosses_wall:
+            edges.append((k, index[i + 1, j]))
+    return RoadmapGraph(nodes, edges)
+
+
+def _wall_distances(points: np.ndarray, walls: np.ndarray) -> np.ndarray:
+    a, b = walls[None, :, 0], walls[None, :, 1]
+    ab = b - a
+    t = np.clip(np.sum((points[:, None] - a) * ab, axis=2) / np.sum(ab * ab, axis=2), 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=2)
+
+
+def _pair_distances(points: np.ndarray) -> np.ndarray:
+    d = np.linalg.norm(points[:, None] - points[None], axis=2)
+    return d + np.eye(len(points)) * 1e9
+
+
+def test_lone_pedestrian_reaches_desired_speed_and_goal() -> None:
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [15.0, 0.0]]), [(0, 1)])
+    crowd = Crowd(roadmap, np.zeros((0, 2, 2)), 1, np.random.default_rng(1))
+    v0 = crowd.desired_speeds_m_s[0]
+    goal_xy = roadmap.nodes_xy[crowd.goals[0]]
+    speeds, reached = [], False
+    for _ in range(int(20.0 / DT)):
+        crowd.step(DT)
+        speeds.append(np.linalg.norm(crowd.velocities_xy[0]))
+        reached |= np.linalg.norm(crowd.positions_xy[0] - goal_xy) < 0.3
+    assert max(speeds) == pytest.approx(v0, rel=0.02)
+    assert max(speeds) <= SocialForceParams().max_speed_factor * v0 + 1e-9
+    assert reached
+
+
+def test_room_invariants_over_10000_steps() -> None:
+    crowd = Crowd(_room_roadmap(), ROOM_WALLS, 20, np.random.default_rng(42))
+    r = crowd.radius_m
+    before, yaw_before = crowd.positions_xy, crowd.yaws_rad
+    for _ in range(10_000):
+        crowd.step(DT)
+        pos, vel = crowd.positions_xy, crowd.velocities_xy
+        assert _wall_distances(pos, ROOM_WALLS).min() >= r - 1e-6
+        assert _pair_distances(pos).min() >= 2 * r - 1e-6
+        assert np.all((pos > 0.0) & (pos < [ROOM_W, ROOM_H]))
+        np.testing.assert_allclose(pos - before, vel * DT, atol=1e-12)
+        yaw_step = (crowd.yaws_rad - yaw_before + math.pi) % (2 * math.pi) - math.pi
+        np.testing.assert_allclose(yaw_step, crowd.yaw_rates_rad_s * DT, atol=1e-9)
+        before, yaw_before = pos, crowd.yaws_rad
+    assert crowd.time_s == pytest.approx(200.0)
+
+
+def test_crowd_makes_progress_in_room() -> None:
+    crowd = Crowd(_room_roadmap(), ROOM_WALLS, 20, np.random.default_rng(5))
+    travelled = np.zeros(crowd.count)
+    goals_seen = [set() for _ in range(crowd.count)]
+    for _ in range(3000):
+        crowd.step(DT)
+        travelled += np.linalg.norm(crowd.velocities_xy, axis=1) * DT
+        for k, g in enumerate(crowd.goals):
+            goals_seen[k].add(int(g))
+    assert np.all(travelled > 10.0)
+    assert all(len(g) >= 2 for g in goals_seen)
+
+
+def test_same_seed_same_crowd_different_seed_differs() -> None:
+    def run(seed: int) -> Crowd:
+        crowd = Crowd(_room_roadmap(), ROOM_WALLS, 10, np.random.default_rng(seed))
+        for _ in range(500):
+            crowd.step(DT)
+        return crowd
+
+    a, b, c = run(3), run(3), run(4)
+    for name in ("positions_xy", "velocities_xy", "yaws_rad", "yaw_rates_rad_s", "goals"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(a.positions_xy, c.positions_xy)
+
+
+def test_robot_circle_is_avoided_and_kept_out_at_spawn() -> None:
+    robot_r = 0.3
+    start = np.array([[2.5, 4.0, robot_r]])
+    keep_out = np.array([[2.5, 4.0, 1.0]])
+    crowd = Crowd(_room_roadmap(), ROOM_WALLS, 12, np.random.default_rng(8), keep_out=keep_out)
+    assert np.linalg.norm(crowd.positions_xy - start[0, :2], axis=1).min() >= 1.0 + crowd.radius_m
+    for k in range(4000):
+        t = k * DT
+        robot_xy = np.array([2.5 + 1.5 * math.sin(0.3 * t), 4.0 + 2.0 * math.sin(0.2 * t)])
+        robot_v = np.array([0.45 * math.cos(0.3 * t), 0.4 * math.cos(0.2 * t)])
+        crowd.step(DT, circles=np.array([[*robot_xy, robot_r]]), circle_velocities=robot_v[None])
+        gap = np.linalg.norm(crowd.positions_xy - robot_xy, axis=1).min()
+        assert gap >= crowd.radius_m + robot_r - 1e-6
+
+
+def test_moving_segment_is_respected() -> None:
+    crowd = Crowd(_room_roadmap(), ROOM_WALLS, 15, np.random.default_rng(11))
+    hinge = np.array([7.5, 3.25])
+    for k in range(3000):
+        yaw = 0.5 * k * DT
+        leaf = np.array([[hinge, hinge + 0.9 * np.array([math.cos(yaw), math.sin(yaw)])]])
+        crowd.step(DT, dynamic_segments=leaf)
+        gaps = _wall_distances(crowd.positions_xy, np.concatenate([ROOM_WALLS, leaf]))
+        assert gaps.min() >= crowd.radius_m - 1e-6
+
+
+def test_yaw_follows_walking_direction() -> None:
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [0.0, 12.0]]), [(0, 1)])
+    crowd = Crowd(roadmap, np.zeros((0, 2, 2)), 1, np.random.default_rng(2))
+    for _ in range(150):
+        crowd.step(DT)
+    heading = math.atan2(crowd.velocities_xy[0, 1], crowd.velocities_xy[0, 0])
+    assert abs((crowd.yaws_rad[0] - heading + math.pi) % (2 * math.pi) - math.pi) < 0.05
+
+
+def test_impossible_spawn_raises() -> None:
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0]]), [])
+    box = np.array([[[-0.2, -0.2], [0.2, -0.2]], [[0.2, -0.2], [0.2, 0.2]], [[0.2, 0.2], [-0.2, 0.2]],
+                    [[-0.2, 0.2], [-0.2, -0.2]]])
+    with pytest.raises(ValueError):
+        Crowd(roadmap, box, 1, np.random.default_rng(0))
+
+
+def test_spawns_along_edges_when_nodes_are_crowded() -> None:
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [10.0, 0.0]]), [(0, 1)])
+    crowd = Crowd(roadmap, np.zeros((0, 2, 2)), 8, np.random.default_rng(0))
+    assert _pair_distances(crowd.positions_xy).min() >= 2 * crowd.radius_m
+    assert np.all(np.abs(crowd.positions_xy[:, 1]) <= 0.3)

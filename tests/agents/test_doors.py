@@ -1,0 +1,105 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simnav.agents import DoorLeaf
+from simnav.agents.doors import DoorStage, door_segments
+from simnav.world.schema import Door
+
+DT = 0.05
+FAR = np.array([[50.0, 50.0]])
+
+
+def _door(**kw: float) -> DoorLeaf:
+    base = dict(hinge=(1.0, 2.0), width_m=0.9, closed_yaw_deg=0.0, swing_deg=90.0, open_s=5.0, closed_s=3.0,
+                move_s=1.0, auto_open_radius_m=1.2)
+    base.update(kw)
+    return DoorLeaf(Door(**base))
+
+
+def _run(
+    leaf: DoorLeaf, t0: float, t1: float, nearby: np.ndarray | None = None
+) -> list[tuple[float, float, float]]:
+    """(t, opening, yaw rate) after each update from t0 to t1."""
+    out = []
+    steps = int(round((t1 - t0) / DT))
+    for k in range(1, steps + 1):
+        t = t0 + k * DT
+        leaf.update(t, DT, nearby)
+        out.append((t, leaf.opening, leaf.yaw_rate_rad_s))
+    return out
+
+
+def test_schedule_open_close_open() -> None:
+    leaf = _door()
+    assert leaf.opening == 1.0 and leaf.yaw_rad == pytest.approx(math.pi / 2)
+    np.testing.assert_allclose(leaf.segment_xy(), [[1.0, 2.0], [1.0, 2.9]], atol=1e-12)
+    trace = {round(t, 2): (o, w) for t, o, w in _run(leaf, 0.0, 12.0, FAR)}
+    assert trace[4.9][0] == 1.0
+    assert 0.0 < trace[5.5][0] < 1.0 and trace[5.5][1] < 0.0  # closing: yaw decreases for a positive swing
+    assert trace[6.5][0] == 0.0 and trace[8.9][0] == 0.0
+    assert 0.0 < trace[9.5][0] < 1.0 and trace[9.5][1] > 0.0
+    assert trace[10.5][0] == 1.0
+
+
+def test_segment_endpoints_and_center() -> None:
+    leaf = _door()
+    _run(leaf, 0.0, 7.0, FAR)
+    seg = leaf.segment_xy()
+    np.testing.assert_allclose(seg, [[1.0, 2.0], [1.9, 2.0]], atol=1e-12)  # closed: across the doorway
+    np.testing.assert_allclose(leaf.center_xy, [1.45, 2.0])
+    assert door_segments([leaf, _door()]).shape == (2, 2, 2)
+    assert door_segments([]).shape == (0, 2, 2)
+
+
+def test_yaw_rate_matches_motion_and_negative_swing() -> None:
+    leaf = _door(swing_deg=-90.0)
+    previous = leaf.yaw_rad
+    rates = []
+    for _ in range(int(11.0 / DT)):
+        leaf.update(0.0, DT, FAR)
+        assert leaf.yaw_rad - previous == pytest.approx(leaf.yaw_rate_rad_s * DT, abs=1e-12)
+        rates.append((leaf.stage, leaf.yaw_rate_rad_s))
+        previous = leaf.yaw_rad
+    assert all(w >= 0.0 for s, w in rates if s == DoorStage.CLOSING)  # closing a negative swing turns yaw up
+    assert all(w <= 0.0 for s, w in rates if s == DoorStage.OPENING)
+    assert any(w != 0.0 for _, w in rates)
+
+
+def test_opens_early_for_someone_waiting() -> None:
+    leaf = _door()
+    _run(leaf, 0.0, 6.5, FAR)
+    assert leaf.opening == 0.0
+    waiting = np.array([[1.45, 1.2]])  # 0.8 m from the doorway centre
+    trace = _run(leaf, 6.5, 8.0, waiting)
+    assert trace[-1][1] == 1.0  # opened within move_s, well before the scheduled 9 s
+    assert all(w >= 0.0 for _, _, w in trace)
+    # stays open while someone is near, far beyond open_s
+    assert all(o == 1.0 for _, o, _ in _run(leaf, 8.0, 20.0, waiting))
+    # then open_s more after they leave, then closes
+    after = _run(leaf, 20.0, 27.0, FAR)
+    assert all(o == 1.0 for t, o, _ in after if t < 24.95)
+    assert after[-1][1] == 0.0
+
+
+def test_reverses_while_closing_and_never_closes_on_someone() -> None:
+    leaf = _door()
+    _run(leaf, 0.0, 5.4, FAR)
+    assert leaf.stage == DoorStage.CLOSING
+    opening = leaf.opening
+    leaf.update(5.45, DT, np.array([[1.45, 2.5]]))
+    assert leaf.stage == DoorStage.OPENING and leaf.opening > opening - 1e-9
+    leaf2 = _door()
+    assert all(o == 1.0 for _, o, _ in _run(leaf2, 0.0, 30.0, np.array([[2.0, 2.0]])))
+
+
+def test_phase_shifts_the_schedule() -> None:
+    leaf = _door(phase_s=6.0)  # 6 s into the cycle: closed
+    assert leaf.opening == 0.0 and leaf.stage == DoorStage.CLOSED
+    _run(leaf, 0.0, 3.5, FAR)
+    assert leaf.stage == DoorStage.OPENING and leaf.opening == pytest.approx(0.5)
+    _run(leaf, 3.5, 4.5, FAR)
+    assert leaf.opening == 1.0

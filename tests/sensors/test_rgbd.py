@@ -1,0 +1,107 @@
+"""RGB-D camera: analytic depth of a wall and the floor, projection of known points, both backends agree,
+segmentation and per-pixel motion of a walking person, noise never produces NaN."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simnav.geometry.camera import PinholeCamera
+from simnav.robot import load_robot
+from simnav.sim import SimConfig, Simulator
+from tests.conftest import box_room_spec
+
+IDEAL = ["sensors.depth.noise_k_per_m=0", "sensors.depth.depth_quantum_m=0", "sensors.depth.grazing_angle_deg=89.9",
+         "sensors.depth.min_range_m=0.05", "sensors.depth.max_range_m=10"]
+CAMERA_X, CAMERA_Z = 3.07, 0.12  # minibot depth camera in the box room (robot at x=3, y=2, facing +x)
+
+
+def frame_in(world, overrides, backend="auto", seed=0, steps=1, pedestrians=0):
+    robot = load_robot("minibot", overrides)
+    with Simulator(world, robot, SimConfig(depth_backend=backend, pedestrians=pedestrians), seed=seed) as sim:
+        for _ in range(steps):
+            sim.step(0.0, 0.0)
+        return sim.capture_now("depth"), sim
+
+
+def analytic_depth(camera: PinholeCamera, wall_z: float) -> np.ndarray:
+    """z-depth of a level camera at height CAMERA_Z facing a wall ``wall_z`` ahead, above a floor at z = 0."""
+    rays = camera.rays_optical()
+    y = rays[..., 1]  # optical y points down
+    with np.errstate(divide="ignore"):
+        floor_z = np.where(y > 0, CAMERA_Z / y, np.inf)
+    return np.minimum(floor_z, wall_z)
+
+
+@pytest.mark.parametrize("backend", ["gl", "raycast"])
+def test_depth_of_wall_and_floor_is_analytic(box_room, backend):
+    frame, _ = frame_in(box_room, IDEAL, backend)
+    camera = PinholeCamera(160, 120, frame.K[0, 0], frame.K[1, 1], frame.K[0, 2], frame.K[1, 2])
+    expected = analytic_depth(camera, 5.95 - CAMERA_X)
+    valid = frame.depth_m > 0
+    assert valid.mean() > 0.95
+    np.testing.assert_allclose(frame.depth_m[valid], expected[valid], rtol=2e-3, atol=2e-3)
+
+
+def test_known_point_projects_to_the_right_pixel():
+    world = box_room_spec(cylinders=[dict(center=[4.5, 2.4], radius_m=0.1, height_m=1.0)])
+    frame, sim = frame_in(world, IDEAL)
+    K = frame.K
+    # the cylinder's front at the camera height, in the optical frame: x right = -y_world, y down = -z_world
+    p_optical = np.array([-(2.4 - 2.0), 0.0, 4.4 - CAMERA_X])
+    u = K[0, 0] * p_optical[0] / p_optical[2] + K[0, 2]
+    v = K[1, 1] * p_optical[1] / p_optical[2] + K[1, 2]
+    assert u < K[0, 2]  # left of the image centre, as the cylinder is to the robot's left
+    depth = frame.depth_m[int(round(v)), int(round(u))]
+    assert depth == pytest.approx(p_optical[2], abs=0.01)
+    beside = frame.depth_m[int(round(v)), int(round(u)) + 20]  # right of the cylinder: the wall
+    assert beside == pytest.approx(5.95 - CAMERA_X, abs=0.01)
+
+
+def test_backends_agree(box_room):
+    gl, _ = frame_in(box_room_spec(cylinders=[dict(center=[4.5, 2.4], radius_m=0.1, height_m=1.0)]), IDEAL, "gl")
+    rc, _ = frame_in(box_room_spec(cylinders=[dict(center=[4.5, 2.4], radius_m=0.1, height_m=1.0)]), IDEAL,
+                     "raycast")
+    both = (gl.depth_m > 0) & (rc.depth_m > 0)
+    assert both.mean() > 0.95
+    assert np.median(np.abs(gl.depth_m[both] - rc.depth_m[both])) < 1e-3
+    assert (gl.body_id == rc.body_id).mean() > 0.98
+
+
+def test_noise_grows_with_depth_and_never_nan(box_room):
+    frame, _ = frame_in(box_room, ["sensors.depth.dropout_prob=0.05", "sensors.depth.grazing_angle_deg=89.9"])
+    ideal, _ = frame_in(box_room, IDEAL)
+    assert np.isfinite(frame.depth_m).all()
+    assert np.isfinite(frame.velocity_optical).all()
+    both = (frame.depth_m > 0) & (ideal.depth_m > 0)
+    err = frame.depth_m[both] - ideal.depth_m[both]
+    far = ideal.depth_m[both] > 2.5
+    near = ideal.depth_m[both] < 1.0
+    assert np.std(err[far]) > 3 * np.std(err[near])
+    assert 0.02 < np.mean(frame.depth_m == 0) - np.mean(ideal.depth_m == 0) < 0.1
+
+
+def test_grazing_floor_pixels_are_null(box_room):
+    frame, _ = frame_in(box_room, IDEAL[:2] + ["sensors.depth.grazing_angle_deg=80"])
+    # the floor is visible from row 66 on (closer than the wall); up to row ~84 it is seen at > 80 degrees
+    assert (frame.depth_m[67:82, 1:-1] == 0).all()  # border columns have no neighbours to judge
+    assert (frame.depth_m[90:] > 0).mean() > 0.99
+    assert (frame.depth_m[:55] > 0).all()
+
+
+def test_walking_person_segmentation_and_motion():
+    world = box_room_spec(roadmap=dict(nodes=[[4.6, 2.0], [5.5, 1.0], [5.5, 3.0]], edges=[[0, 1], [0, 2]]),
+                          agents=dict(pedestrians=1))
+    frame, sim = frame_in(world, IDEAL, steps=20, pedestrians=1)
+    person = sim.index.pedestrian_body[0]
+    mask = frame.body_id == person
+    assert mask.sum() > 50
+    v_world = np.array([*sim.crowd.velocities_xy[0], 0.0])
+    assert np.linalg.norm(v_world) > 0.2
+    R_world_optical = (sim.T_world_base_at(frame.stamp_s) @ frame.T_base_sensor)[:3, :3]
+    expected = R_world_optical.T @ v_world
+    measured = np.median(frame.velocity_optical[:, mask], axis=1)
+    cosine = measured @ expected / (np.linalg.norm(measured) * np.linalg.norm(expected))
+    assert cosine > 0.95  # same direction in the optical frame (x right, y down, z forward)
+    assert np.linalg.norm(measured) == pytest.approx(np.linalg.norm(expected), rel=0.3)
+    assert np.all(frame.velocity_optical[:, frame.body_id == 0] == 0)  # static scenery does not move
