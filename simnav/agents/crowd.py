@@ -36,6 +36,13 @@ YAW_TIME_CONSTANT_S = 0.25
 MAX_YAW_RATE_RAD_S = 4.0
 MOVING_SPEED_M_S = 0.1
 PROJECTION_SWEEPS = 40
+BLOCKED_SPEED_M_S = 0.2
+BLOCKING_DISTANCE_M = 1.0
+BLOCKING_HALF_ANGLE_RAD = math.radians(60.0)
+YIELD_AFTER_S = 1.5
+FORCE_YIELD_AFTER_S = 4.0
+YIELD_DURATION_S = (1.0, 2.5)
+YIELD_SPEED_FACTOR = 0.5
 _NEAR_SLACK_M = 1.0  # the reach, beyond the radius and the move, that the projection keeps around a centre
 
 
@@ -147,6 +154,10 @@ class Crowd:
         self._yaw_rate = np.zeros(len(self._pos))
         self._anchor_xy = self._pos.copy()
         self._anchor_t = np.zeros(len(self._pos))
+        self._priority = rng.uniform(size=len(self._pos))
+        self._blocked_s = np.zeros(len(self._pos))
+        self._yield_s = np.zeros(len(self._pos))
+        self._yield_dir = np.zeros((len(self._pos), 2))
 
     @property
     def count(self) -> int:
@@ -233,6 +244,7 @@ class Crowd:
         self._vel = (resolved - self._pos) / dt_s
         self._pos = resolved
         self._update_yaws(dt_s)
+        self._handle_blocking(dt_s)
         self._handle_stuck()
 
     def _wall_pairs(
@@ -252,7 +264,10 @@ class Crowd:
         dist = np.linalg.norm(to_target, axis=1)
         ok = dist > 1e-6
         self._dirs[ok] = to_target[ok] / dist[ok, None]
-        return self._dirs, np.where(self._arrived, 0.0, self._speeds)
+        yielding = self._yield_s > 0.0
+        self._dirs[yielding] = self._yield_dir[yielding]
+        speeds = np.where(yielding, YIELD_SPEED_FACTOR * self._speeds, self._speeds)
+        return self._dirs, np.where(self._arrived, 0.0, speeds)
 
     def _update_yaws(self, dt_s: float) -> None:
         speed = np.linalg.norm(self._vel, axis=1)
@@ -331,6 +346,34 @@ class Crowd:
             reach_m = GOAL_REACHED_M if last else WAYPOINT_REACHED_M
             if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
                 return
+
+    def _handle_blocking(self, dt_s: float) -> None:
+        """Break face-offs (e.g. in a doorway): after a while the lower-priority pedestrian steps back.
+
+        A pedestrian is blocked while it barely moves and someone stands within BLOCKING_DISTANCE_M ahead
+        (±60° of its desired direction). Blocked for YIELD_AFTER_S, it steps back from the closest one ahead
+        for 1–2.5 s if that one has a higher priority (drawn at spawn); blocked for FORCE_YIELD_AFTER_S, it
+        steps back anyway.
+        """
+        self._yield_s = np.maximum(self._yield_s - dt_s, 0.0)
+        n = len(self._pos)
+        if n < 2:
+            return
+        rel = self._pos[None, :, :] - self._pos[:, None, :]
+        dist = np.linalg.norm(rel, axis=2) + np.eye(n) * 1e9
+        ahead = np.sum(rel * self._dirs[:, None, :], axis=2) >= dist * math.cos(BLOCKING_HALF_ANGLE_RAD)
+        in_way = ahead & (dist < BLOCKING_DISTANCE_M)
+        slow = np.linalg.norm(self._vel, axis=1) < BLOCKED_SPEED_M_S
+        blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & np.any(in_way, axis=1)
+        self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
+        blocker = np.argmin(np.where(in_way, dist, np.inf), axis=1)
+        outranked = self._priority < self._priority[blocker]
+        steps_back = (self._blocked_s >= YIELD_AFTER_S) & outranked | (self._blocked_s >= FORCE_YIELD_AFTER_S)
+        for k in np.nonzero(steps_back)[0]:
+            away = -rel[k, blocker[k]]
+            self._yield_dir[k] = away / max(float(np.linalg.norm(away)), 1e-9)
+            self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
+            self._blocked_s[k] = 0.0
 
     def _handle_stuck(self) -> None:
         progressed = np.linalg.norm(self._pos - self._anchor_xy, axis=1) >= STUCK_PROGRESS_M

@@ -46,6 +46,7 @@ class SocialForceParams:
         step_time_s: Δt of the step ``y_β = v_β·Δt`` in the elliptical potential.
         radius_m: body radius of a pedestrian.
         wall_cutoff_m: walls further than this are ignored.
+        wall_merge_angle_deg: wall points seen within this angle of a closer one count as the same obstacle.
     """
 
     v0_m2_s2: float = 2.1
@@ -59,6 +60,7 @@ class SocialForceParams:
     step_time_s: float = 0.4
     radius_m: float = 0.25
     wall_cutoff_m: float = 3.0
+    wall_merge_angle_deg: float = 45.0
 
     @property
     def cos_half_fov(self) -> float:
@@ -221,7 +223,12 @@ def wall_repulsion_pairs(
     seg_idx: np.ndarray,
     params: SocialForceParams,
 ) -> np.ndarray:
-    """Wall repulsion ``U⁰/R·exp(−d/R)`` along the outward normal, summed over candidate pairs.
+    """Wall repulsion ``U⁰/R·exp(−d/R)`` along the outward normal, summed over the walls a pedestrian faces.
+
+    Each segment offers its closest point. A point seen within ``wall_merge_angle_deg`` of a closer one is
+    part of the same obstacle (the other segment at a corner, the far face of a thin wall, the next piece of
+    a straight wall) and adds nothing, so every obstacle pushes once, from its nearest point, as in the
+    model, however its outline is cut into segments.
 
     Args:
         positions: (N, 2) metres.
@@ -237,11 +244,33 @@ def wall_repulsion_pairs(
     if len(ped_idx) == 0:
         return np.zeros((n, 2))
     diff, d = segments.offsets(positions, ped_idx, seg_idx)
-    d = np.maximum(d, _EPS)
-    mag = np.where(d < params.wall_cutoff_m, params.u0_m2_s2 / params.r_m * np.exp(-d / params.r_m), 0.0) / d
-    fx = np.bincount(ped_idx, weights=mag * diff[:, 0], minlength=n)
-    fy = np.bincount(ped_idx, weights=mag * diff[:, 1], minlength=n)
-    return np.stack([fx, fy], axis=1)
+    near = d < params.wall_cutoff_m
+    ped, diff, d = ped_idx[near], diff[near], np.maximum(d[near], _EPS)
+    normal = diff / d[:, None]
+    kept = _nearest_per_direction(ped, d, normal, n, math.cos(math.radians(params.wall_merge_angle_deg)))
+    mag = params.u0_m2_s2 / params.r_m * np.exp(-d[kept] / params.r_m)
+    return _sum_by_index(ped[kept], normal[kept] * mag[:, None], n)
+
+
+def _nearest_per_direction(
+    ped: np.ndarray, dist: np.ndarray, normal: np.ndarray, n: int, cos_merge: float
+) -> np.ndarray:
+    """(P,) True for the points no closer point of the same pedestrian sees within the merge angle."""
+    if len(ped) == 0:
+        return np.zeros(0, dtype=bool)
+    order = np.lexsort((dist, ped))
+    ped_s, normal_s = ped[order], normal[order]
+    counts = np.bincount(ped_s, minlength=n)
+    rank = np.arange(len(ped_s)) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = int(counts.max())
+    padded = np.zeros((n, width, 2))
+    padded[ped_s, rank] = normal_s
+    cos = np.einsum("nkd,njd->nkj", padded, padded)
+    closer = np.tri(width, width, -1, dtype=bool)  # [k, j]: j comes before (is closer than) k
+    merged = np.any((cos > cos_merge) & closer, axis=2)  # padding rows are zero vectors: never similar
+    kept = np.empty(len(ped), dtype=bool)
+    kept[order] = ~merged[ped_s, rank]
+    return kept
 
 
 def social_force(

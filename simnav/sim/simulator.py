@@ -101,6 +101,7 @@ class Simulator:
         self._history.append((0.0, *self.pose_xy_yaw))
         self._pose_agents_at(0.0)
         mujoco.mj_forward(self.model, self.data)
+        self._capture_due()  # every sensor's first reading is at t = 0
 
     def _place_robot(self, spawn: int | None) -> None:
         k = spawn if spawn is not None else (self.config.spawn or 0)

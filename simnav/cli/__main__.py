@@ -1,0 +1,5 @@
+"""``python -m simnav.cli``."""
+
+from simnav.cli.app import main
+
+main()
