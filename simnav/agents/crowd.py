@@ -245,7 +245,7 @@ class Crowd:
         self._pos = resolved
         self._update_yaws(dt_s)
         self._handle_blocking(dt_s)
-        self._handle_stuck()
+        self._handle_stuck(segs)
 
     def _wall_pairs(
         self, points: np.ndarray, dynamic_segments: np.ndarray | None
@@ -375,22 +375,22 @@ class Crowd:
             self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
             self._blocked_s[k] = 0.0
 
-    def _handle_stuck(self) -> None:
+    def _handle_stuck(self, walls: Segments) -> None:
         progressed = np.linalg.norm(self._pos - self._anchor_xy, axis=1) >= STUCK_PROGRESS_M
         reset = progressed | self._arrived
         self._anchor_xy[reset] = self._pos[reset]
         self._anchor_t[reset] = self._time_s
         for k in np.nonzero(self._time_s - self._anchor_t >= STUCK_TIME_S)[0]:
             _LOG.debug("pedestrian %d stuck at %s, re-planning", k, self._pos[k])
-            self._plan(int(k), self._nearest_visible_node(self._pos[k]))
+            self._plan(int(k), self._nearest_visible_node(self._pos[k], walls))
             self._anchor_xy[k] = self._pos[k]
             self._anchor_t[k] = self._time_s
 
-    def _nearest_visible_node(self, xy: np.ndarray, candidates: int = 8) -> int:
+    def _nearest_visible_node(self, xy: np.ndarray, walls: Segments, candidates: int = 8) -> int:
         """The nearest roadmap node in line of sight of ``xy`` among the closest few, else the nearest one."""
         order = np.argsort(np.linalg.norm(self._roadmap.nodes_xy - xy, axis=1))
         for node in order[:candidates]:
-            if _visible(xy, self._roadmap.nodes_xy[node], self._walls):
+            if _visible(xy, self._roadmap.nodes_xy[node], walls):
                 return int(node)
         return int(order[0])
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 _EPS = 1e-9
+_NEGLIGIBLE_M_S2 = 1e-3  # wall forces weaker than this are skipped
 CONTACT_MARGIN_M = 1e-3
 """Clearance added by :func:`resolve_overlaps` beyond touching (bodies end up at least half of it apart)."""
 _NEAR_SLACK_M = 1.0  # a projection ignores walls further than radius + this + the move from previous_xy
@@ -47,6 +48,10 @@ class SocialForceParams:
         radius_m: body radius of a pedestrian.
         wall_cutoff_m: walls further than this are ignored.
         wall_merge_angle_deg: wall points seen within this angle of a closer one count as the same obstacle.
+        wall_look_ahead_m: when this stretch of the desired direction is clear of walls, wall forces only
+            steer: their component against the desired direction is dropped, so door jambs do not hold
+            people back (with the H&M values a 1 m doorway otherwise stops anyone slower than about
+            1.4 m/s). 0 gives plain H&M walls.
     """
 
     v0_m2_s2: float = 2.1
@@ -61,6 +66,7 @@ class SocialForceParams:
     radius_m: float = 0.25
     wall_cutoff_m: float = 3.0
     wall_merge_angle_deg: float = 45.0
+    wall_look_ahead_m: float = 1.0
 
     @property
     def cos_half_fov(self) -> float:
@@ -222,13 +228,16 @@ def wall_repulsion_pairs(
     ped_idx: np.ndarray,
     seg_idx: np.ndarray,
     params: SocialForceParams,
+    desired_dirs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Wall repulsion ``U⁰/R·exp(−d/R)`` along the outward normal, summed over the walls a pedestrian faces.
 
     Each segment offers its closest point. A point seen within ``wall_merge_angle_deg`` of a closer one is
     part of the same obstacle (the other segment at a corner, the far face of a thin wall, the next piece of
     a straight wall) and adds nothing, so every obstacle pushes once, from its nearest point, as in the
-    model, however its outline is cut into segments.
+    model, however its outline is cut into segments. With ``desired_dirs`` and ``wall_look_ahead_m`` > 0, a
+    pedestrian whose way ahead is clear keeps only the part of the force that does not oppose its desired
+    direction.
 
     Args:
         positions: (N, 2) metres.
@@ -236,6 +245,7 @@ def wall_repulsion_pairs(
         ped_idx, seg_idx: (P,) candidate (pedestrian, segment) pairs; pairs beyond ``wall_cutoff_m`` add
             nothing.
         params: model parameters.
+        desired_dirs: (N, 2) unit desired directions, or None.
 
     Returns:
         (N, 2) m/s².
@@ -244,12 +254,42 @@ def wall_repulsion_pairs(
     if len(ped_idx) == 0:
         return np.zeros((n, 2))
     diff, d = segments.offsets(positions, ped_idx, seg_idx)
-    near = d < params.wall_cutoff_m
+    strength = params.u0_m2_s2 / params.r_m
+    reach = params.r_m * math.log(max(strength / _NEGLIGIBLE_M_S2, 1.0))
+    near = d < min(params.wall_cutoff_m, reach)
+    in_look = d <= params.wall_look_ahead_m + params.radius_m  # only these can come near the stretch
+    look_ped, look_seg = ped_idx[in_look], seg_idx[in_look]
     ped, diff, d = ped_idx[near], diff[near], np.maximum(d[near], _EPS)
     normal = diff / d[:, None]
     kept = _nearest_per_direction(ped, d, normal, n, math.cos(math.radians(params.wall_merge_angle_deg)))
-    mag = params.u0_m2_s2 / params.r_m * np.exp(-d[kept] / params.r_m)
-    return _sum_by_index(ped[kept], normal[kept] * mag[:, None], n)
+    mag = strength * np.exp(-d[kept] / params.r_m)
+    force = _sum_by_index(ped[kept], normal[kept] * mag[:, None], n)
+    if desired_dirs is None or params.wall_look_ahead_m <= 0.0:
+        return force
+    return _steer_only_when_clear(force, positions, desired_dirs, segments, look_ped, look_seg, params)
+
+
+def _steer_only_when_clear(
+    force: np.ndarray,
+    positions: np.ndarray,
+    desired_dirs: np.ndarray,
+    segments: Segments,
+    ped_idx: np.ndarray,
+    seg_idx: np.ndarray,
+    params: SocialForceParams,
+) -> np.ndarray:
+    """Drop the component of ``force`` against the desired direction where the way ahead is clear.
+
+    The way is clear when no segment comes within a body radius of the look-ahead stretch.
+    """
+    start = positions[ped_idx]
+    ahead = start + params.wall_look_ahead_m * desired_dirs[ped_idx]
+    hits = _segment_gaps(start, ahead, segments, seg_idx) < params.radius_m
+    clear = np.bincount(ped_idx[hits], minlength=len(positions)) == 0
+    along = np.sum(force * desired_dirs, axis=1)
+    against = clear & (along < 0.0)
+    force[against] -= along[against, None] * desired_dirs[against]
+    return force
 
 
 def _nearest_per_direction(
@@ -265,7 +305,8 @@ def _nearest_per_direction(
     width = int(counts.max())
     padded = np.zeros((n, width, 2))
     padded[ped_s, rank] = normal_s
-    cos = np.einsum("nkd,njd->nkj", padded, padded)
+    nx, ny = padded[..., 0], padded[..., 1]
+    cos = nx[:, :, None] * nx[:, None, :] + ny[:, :, None] * ny[:, None, :]
     closer = np.tri(width, width, -1, dtype=bool)  # [k, j]: j comes before (is closer than) k
     merged = np.any((cos > cos_merge) & closer, axis=2)  # padding rows are zero vectors: never similar
     kept = np.empty(len(ped), dtype=bool)
@@ -326,7 +367,7 @@ def social_force_pairs(
     acc += pedestrian_repulsion(positions, velocities, desired_dirs, params)
     if circles is not None:
         acc += circle_repulsion(positions, desired_dirs, circles, circle_velocities, params)
-    acc += wall_repulsion_pairs(positions, segments, ped_idx, seg_idx, params)
+    acc += wall_repulsion_pairs(positions, segments, ped_idx, seg_idx, params, desired_dirs)
     return acc
 
 
@@ -413,18 +454,23 @@ def resolve_overlaps_pairs(
     """
     pos = np.array(positions, dtype=float)
     prev = None if previous_xy is None else np.asarray(previous_xy, dtype=float)
-    move = 0.0 if prev is None or len(pos) == 0 else float(np.max(np.linalg.norm(pos - prev, axis=1)))
-    reach = radius_m + _NEAR_SLACK_M + move
-    near = _near_mask(pos, reach, segments, ped_idx, seg_idx)
-    near_ped, near_seg = ped_idx[near], seg_idx[near]
-    guard = None
+    moved = pos.copy()
+    step = np.zeros(len(pos)) if prev is None else np.linalg.norm(pos - prev, axis=1)
+    reach = radius_m + _NEAR_SLACK_M + (float(step.max()) if len(step) else 0.0)
+    dist = _distances(pos, segments, ped_idx, seg_idx)
+    near = dist < reach
+    near_ped, near_seg, near_dist = ped_idx[near], seg_idx[near], dist[near]
+    guarded = None
     if prev is not None and check_crossing is not None:
         guarded = np.asarray(check_crossing, dtype=bool)[near]
-        guard = (near_ped[guarded], near_seg[guarded])
-        pos = _undo_crossings(pos, prev, segments, *guard)
+        # a segment crossed on the way from prev lies within the length of that way of its end
+        first = guarded & (near_dist <= step[near_ped] + _EPS)
+        pos = _undo_crossings(pos, prev, segments, near_ped[first], near_seg[first])
     pos = _project(pos, radius_m, segments, near_ped, near_seg, circles, iterations)
-    if guard is not None:
-        undone = _undo_crossings(pos, prev, segments, *guard)
+    if prev is not None and guarded is not None:
+        way = np.linalg.norm(pos - prev, axis=1) + np.linalg.norm(pos - moved, axis=1)
+        last = guarded & (near_dist <= way[near_ped] + _EPS)
+        undone = _undo_crossings(pos, prev, segments, near_ped[last], near_seg[last])
         if undone is not pos:  # pushes combined across a wall (e.g. squeezed by a door leaf): walls win
             pos, _ = _push_out_of_walls(undone, radius_m, segments, near_ped, near_seg)
     return pos
@@ -451,14 +497,11 @@ def _project(
     return pos
 
 
-def _near_mask(
-    pos: np.ndarray, reach_m: float, segments: Segments, ped_idx: np.ndarray, seg_idx: np.ndarray
-) -> np.ndarray:
-    """(P,) True for the pairs whose segment lies within ``reach_m`` of the pedestrian."""
+def _distances(pos: np.ndarray, segments: Segments, ped_idx: np.ndarray, seg_idx: np.ndarray) -> np.ndarray:
+    """(P,) distance from pedestrian ``ped_idx[k]`` to segment ``seg_idx[k]``, metres."""
     if len(ped_idx) == 0:
-        return np.zeros(0, dtype=bool)
-    _, d = segments.offsets(pos, ped_idx, seg_idx)
-    return d < reach_m
+        return np.zeros(0)
+    return segments.offsets(pos, ped_idx, seg_idx)[1]
 
 
 def _push_out_of_walls(
@@ -562,7 +605,16 @@ def _undo_crossings(
     """Put back pedestrians whose straight move from ``prev`` to ``pos`` touches or crosses a segment."""
     if len(ped_idx) == 0:
         return pos
-    p0, p1 = prev[ped_idx], pos[ped_idx]
+    crossed = _crossings(prev[ped_idx], pos[ped_idx], segments, seg_idx)
+    if np.any(crossed):
+        pos = pos.copy()
+        back = np.unique(ped_idx[crossed])
+        pos[back] = prev[back]
+    return pos
+
+
+def _crossings(p0: np.ndarray, p1: np.ndarray, segments: Segments, seg_idx: np.ndarray) -> np.ndarray:
+    """(P,) True where the straight move p0[k] → p1[k] touches or crosses segment ``seg_idx[k]``."""
     a, ab = segments.start[seg_idx], segments.delta[seg_idx]
     move = p1 - p0
     d1 = _cross(ab, p0 - a)
@@ -570,12 +622,26 @@ def _undo_crossings(
     d3 = _cross(move, a - p0)
     d4 = _cross(move, a + ab - p0)
     collinear = (d1 == 0.0) & (d2 == 0.0)
-    crossed = (d1 * d2 <= 0.0) & (d3 * d4 <= 0.0) & ~collinear
-    if np.any(crossed):
-        pos = pos.copy()
-        back = np.unique(ped_idx[crossed])
-        pos[back] = prev[back]
-    return pos
+    return (d1 * d2 <= 0.0) & (d3 * d4 <= 0.0) & ~collinear
+
+
+def _segment_gaps(p0: np.ndarray, p1: np.ndarray, segments: Segments, seg_idx: np.ndarray) -> np.ndarray:
+    """(P,) distance between the stretch p0[k]–p1[k] and segment ``seg_idx[k]``, metres (0 if they cross)."""
+    a, ab = segments.start[seg_idx], segments.delta[seg_idx]
+    gaps = np.minimum(
+        np.minimum(_point_to_segment(p0, a, ab), _point_to_segment(p1, a, ab)),
+        np.minimum(_point_to_segment(a, p0, p1 - p0), _point_to_segment(a + ab, p0, p1 - p0)),
+    )
+    gaps[_crossings(p0, p1, segments, seg_idx)] = 0.0
+    return gaps
+
+
+def _point_to_segment(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> np.ndarray:
+    """(P,) distance from points p to segments a → a + ab, all (P, 2)."""
+    ap = p - a
+    len2 = np.maximum(ab[:, 0] ** 2 + ab[:, 1] ** 2, 1e-18)
+    t = np.clip((ap[:, 0] * ab[:, 0] + ap[:, 1] * ab[:, 1]) / len2, 0.0, 1.0)
+    return np.hypot(ap[:, 0] - t * ab[:, 0], ap[:, 1] - t * ab[:, 1])
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -307,7 +307,7 @@ def _ranges_text(ranges: np.ndarray, no_return_m: float) -> list[str]:
     valid = np.isfinite(ranges) & (ranges > 0) & (ranges < no_return_m)
     out = np.full(len(ranges), float(no_return_m))
     out[valid] = np.clip(np.round(ranges[valid], 3), 0.001, float(no_return_m) - 0.001)
-    return [fmt_float(v, 3) for v in out]
+    return [f"{v:.3f}" for v in out.tolist()]  # all values are >= 0.001: no negative zero to guard against
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from typing import IO
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from simnav.geometry import se3
 from simnav.io import MissingDataError, format_error
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
@@ -263,7 +264,8 @@ def read_tum_covariance(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def format_tum_line(stamp_s: float, T: np.ndarray) -> str:
     """One TUM line ``timestamp tx ty tz qx qy qz qw`` for a (4, 4) pose (no line end)."""
-    q = _canonical_quat(Rotation.from_matrix(T[:3, :3]).as_quat()[None])[0]
+    w, x, y, z = se3.to_quat_wxyz(T[:3, :3])
+    q = (x, y, z, w)
     fields = [fmt_float(stamp_s, 6)]
     fields += [fmt_float(v, 6) for v in T[:3, 3]]
     fields += [fmt_float(v, 9) for v in q]

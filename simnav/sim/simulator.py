@@ -56,6 +56,8 @@ class Simulator:
         self.model, self.index = build_scene(world, robot, self.pedestrian_count, self.wanderer_count,
                                              self.config.physics_dt_s)
         self.data = mujoco.MjData(self.model)
+        q0, v0 = int(self.index.qpos_adr[0]), int(self.index.dof_adr[0])
+        self._qs, self._vs = slice(q0, q0 + 3), slice(v0, v0 + 3)  # the base's x, y, yaw (contiguous)
         self.roadmap = RoadmapGraph.from_spec(world.roadmap)
         self._walls_xy = obstacle_segments(world)
         self.robot_radius_m = _circumradius(robot)
@@ -109,10 +111,10 @@ class Simulator:
             raise SimnavError(f"spawn index {k} out of range: world '{self.world.name}' has "
                               f"{len(self.world.spawns)} spawns")
         s = self.world.spawns[k]
-        self.data.qpos[self.index.qpos_adr] = [s.x_m, s.y_m, s.yaw_rad]
+        self.data.qpos[self._qs] = [s.x_m, s.y_m, s.yaw_rad]
 
     def _reset_agents(self) -> None:
-        x, y, _ = self.data.qpos[self.index.qpos_adr]
+        x, y, _ = self.data.qpos[self._qs].tolist()
         keep_out = np.array([[x, y, self.robot_radius_m + 0.5]])
         agents = self.world.agents
         self.crowd = Crowd(self.roadmap, self._walls_xy, self.pedestrian_count, self._rng_crowd,
@@ -124,6 +126,7 @@ class Simulator:
                                    speed_m_s=agents.robot_speed_m_s, radius_m=WANDERER_RADIUS_M, keep_out=keep_out)
         self.doors = [DoorLeaf(d) for d in self.world.doors]
         self._agent_time_s = 0.0
+        self._posed_at: tuple[float, float] | None = None
 
     def _reset_drive(self) -> None:
         self._commands: deque[tuple[float, float, float]] = deque([(-math.inf, 0.0, 0.0)])  # (apply at s, v, w)
@@ -221,8 +224,8 @@ class Simulator:
 
     def _step_agents(self) -> None:
         dt = self.config.agent_dt_s
-        robot_xy = self.data.qpos[self.index.qpos_adr[:2]].copy()
-        robot_vel = self.data.qvel[self.index.dof_adr[:2]].copy()
+        robot_xy = self.data.qpos[self._qs][:2].copy()
+        robot_vel = self.data.qvel[self._vs][:2].copy()
         circles = np.vstack([[*robot_xy, self.robot_radius_m],
                              np.column_stack([self.wanderers.positions_xy, np.full(self.wanderers.count,
                                                                                      WANDERER_RADIUS_M)])])
@@ -239,6 +242,9 @@ class Simulator:
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
+        if self._posed_at == (t_s, self._agent_time_s):
+            return
+        self._posed_at = (t_s, self._agent_time_s)
         back = max(self._agent_time_s - t_s, 0.0)
         d, idx = self.data, self.index
         for mocap, pos, vel, yaw, rate in (
@@ -357,7 +363,7 @@ class Simulator:
     @property
     def T_world_base(self) -> np.ndarray:
         """(4, 4) ground-truth pose of the robot base in the world."""
-        x, y, yaw = self.data.qpos[self.index.qpos_adr]
+        x, y, yaw = self.data.qpos[self._qs].tolist()
         c, s = math.cos(yaw), math.sin(yaw)
         T = np.eye(4)
         T[:2, :2] = [[c, -s], [s, c]]
@@ -367,7 +373,7 @@ class Simulator:
     @property
     def pose_xy_yaw(self) -> tuple[float, float, float]:
         """Ground-truth planar pose (x m, y m, yaw rad in (-pi, pi])."""
-        x, y, yaw = self.data.qpos[self.index.qpos_adr]
+        x, y, yaw = self.data.qpos[self._qs].tolist()
         return float(x), float(y), float(math.atan2(math.sin(yaw), math.cos(yaw)))
 
     def T_world_base_at(self, stamp_s: float) -> np.ndarray:
@@ -384,8 +390,8 @@ class Simulator:
 
     def base_velocity(self) -> tuple[float, float]:
         """Ground-truth forward speed (m/s, along base x) and yaw rate (rad/s)."""
-        vx, vy, w = self.data.qvel[self.index.dof_adr]
-        yaw = self.data.qpos[self.index.qpos_adr[2]]
+        vx, vy, w = self.data.qvel[self._vs].tolist()
+        yaw = float(self.data.qpos[self._qs.start + 2])
         return float(vx * math.cos(yaw) + vy * math.sin(yaw)), float(w)
 
     def body_twists_world(self) -> np.ndarray:
@@ -401,8 +407,8 @@ class Simulator:
         tw[idx.wanderer_body, :2] = self.wanderers.velocities_xy
         tw[idx.wanderer_body, 5] = self.wanderers.yaw_rates_rad_s
         tw[idx.door_body, 5] = [door.yaw_rate_rad_s for door in self.doors]
-        tw[idx.robot_body, :2] = self.data.qvel[idx.dof_adr[:2]]
-        tw[idx.robot_body, 5] = self.data.qvel[idx.dof_adr[2]]
+        tw[idx.robot_body, :2] = self.data.qvel[self._vs][:2]
+        tw[idx.robot_body, 5] = self.data.qvel[self._vs][2]
         return tw
 
     def close(self) -> None:

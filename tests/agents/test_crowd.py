@@ -152,3 +152,31 @@ def test_spawns_along_edges_when_nodes_are_crowded() -> None:
     crowd = Crowd(roadmap, np.zeros((0, 2, 2)), 8, np.random.default_rng(0))
     assert _pair_distances(crowd.positions_xy).min() >= 2 * crowd.radius_m
     assert np.all(np.abs(crowd.positions_xy[:, 1]) <= 0.3)
+
+
+def test_pedestrians_cross_a_one_metre_doorway_both_ways() -> None:
+    t = 0.06  # two 5 x 4 m rooms joined by a 1 m doorway in a 12 cm wall at x = 5
+    walls = np.array(
+        [
+            [[0, 0], [10, 0]], [[10, 0], [10, 4]], [[10, 4], [0, 4]], [[0, 4], [0, 0]],
+            [[5 - t, 0], [5 - t, 1.5]], [[5 - t, 1.5], [5 + t, 1.5]], [[5 + t, 1.5], [5 + t, 0]],
+            [[5 - t, 4], [5 - t, 2.5]], [[5 - t, 2.5], [5 + t, 2.5]], [[5 + t, 2.5], [5 + t, 4]],
+        ],
+        dtype=float,
+    )
+    nodes = np.array([[1.5, 1], [1.5, 3], [3.5, 1], [3.5, 3], [4.2, 2], [5, 2], [5.8, 2], [6.5, 1], [6.5, 3],
+                      [8.5, 1], [8.5, 3]], dtype=float)
+    edges = [(0, 1), (0, 2), (1, 3), (2, 3), (2, 4), (3, 4), (4, 5), (5, 6), (6, 7), (6, 8), (7, 8), (7, 9),
+             (8, 10), (9, 10)]
+    crowd = Crowd(RoadmapGraph(nodes, edges), walls, 8, np.random.default_rng(0))
+    x_min = crowd.positions_xy[:, 0].copy()
+    x_max = x_min.copy()
+    travelled = np.zeros(crowd.count)
+    for _ in range(2400):
+        crowd.step(0.05)
+        x_min = np.minimum(x_min, crowd.positions_xy[:, 0])
+        x_max = np.maximum(x_max, crowd.positions_xy[:, 0])
+        travelled += np.linalg.norm(crowd.velocities_xy, axis=1) * 0.05
+        assert _wall_distances(crowd.positions_xy, walls).min() >= crowd.radius_m - 1e-6
+    assert np.all((x_min < 5.0) & (x_max > 5.0))
+    assert np.all(travelled > 60.0)

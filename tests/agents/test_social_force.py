@@ -131,3 +131,41 @@ def test_head_on_in_corridor_pass_without_overlap() -> None:
         assert np.all(pos[:, 1] <= 2.5 - PARAMS.radius_m + 1e-6)
     assert min_gap >= 2 * PARAMS.radius_m - 1e-6
     assert pos[0, 0] > 17.0 and pos[1, 0] < 3.0
+
+
+def _wall_force(pos: np.ndarray, walls: np.ndarray, direction=(1.0, 0.0), **kw: float) -> np.ndarray:
+    params = SocialForceParams(**kw)
+    dirs = np.tile(np.asarray(direction, dtype=float), (len(pos), 1))
+    return social_force(pos, np.zeros_like(pos), dirs, np.zeros(len(pos)), walls, params=params)
+
+
+def test_wall_cut_into_pieces_pushes_like_one_wall() -> None:
+    pos = np.array([[0.1, 0.4], [-2.3, -0.7]])
+    whole = np.array([[[-5.0, 0.0], [5.0, 0.0]]])
+    xs = np.linspace(-5.0, 5.0, 41)
+    pieces = np.stack([np.stack([xs[:-1], np.zeros(40)], 1), np.stack([xs[1:], np.zeros(40)], 1)], axis=1)
+    np.testing.assert_allclose(_wall_force(pos, pieces), _wall_force(pos, whole), atol=1e-12)
+
+
+def test_corner_of_a_box_pushes_once() -> None:
+    box = np.array([[[0.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [1.0, 1.0]], [[1.0, 1.0], [0.0, 1.0]],
+                    [[0.0, 1.0], [0.0, 0.0]]])
+    pos = np.array([[1.3, 1.4]])
+    corner = box[1, 1]
+    d = np.linalg.norm(pos[0] - corner)
+    expected = PARAMS.u0_m2_s2 / PARAMS.r_m * math.exp(-d / PARAMS.r_m) * (pos[0] - corner) / d
+    np.testing.assert_allclose(_wall_force(pos, box, direction=(0.0, 1.0))[0], expected, rtol=1e-9)
+
+
+def test_door_jambs_steer_but_do_not_brake_when_the_way_is_clear() -> None:
+    t = 0.06  # a 1 m doorway in a wall along y = 0
+    wall = np.array([[[-5, -t], [-0.5, -t]], [[-0.5, -t], [-0.5, t]], [[-0.5, t], [-5, t]],
+                     [[5, -t], [0.5, -t]], [[0.5, -t], [0.5, t]], [[0.5, t], [5, t]]], dtype=float)
+    pos = np.array([[0.1, -0.35]])
+    through = _wall_force(pos, wall, direction=(0.0, 1.0))[0]
+    plain = _wall_force(pos, wall, direction=(0.0, 1.0), wall_look_ahead_m=0.0)[0]
+    assert through[1] == pytest.approx(0.0, abs=1e-12) and through[0] < 0.0  # centred, not held back
+    assert plain[1] < -2.0  # plain H&M: the jambs brake harder than a 1 m/s walker can push
+    assert through[0] == pytest.approx(plain[0])
+    into_wall = _wall_force(np.array([[2.0, -0.35]]), wall, direction=(0.0, 1.0))[0]
+    assert into_wall[1] < 0.0  # a wall straight ahead still brakes
