@@ -4,6 +4,11 @@ Everything is in the world frame (x/y on the floor), SI units. Each pedestrian w
 path to a random goal node, pauses there 0–2 s, then picks the next goal. Velocities are the exact
 displacement of the last step divided by the step (``x_{k+1} = x_k + v_{k+1}·dt``), contact pushes included,
 so they can serve as ground truth for scene flow.
+
+Two rules keep the crowd moving where the force model alone locks up. Face-offs (two people meeting in a
+doorway) end when one of them, the one of lower priority after 1.5 s or either after 4 s, steps back for a
+moment. Anybody who makes less than 0.3 m of progress in 10 s re-plans from the nearest roadmap node in
+sight to a new goal.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from simnav.agents.social_force import (
     integrate,
     resolve_overlaps_pairs,
     social_force_pairs,
+    wall_reach_m,
 )
 
 _LOG = logging.getLogger(__name__)
@@ -121,7 +127,7 @@ class Crowd:
         keep_out: (K, 3) circles ``[x, y, radius]`` (metres) where nobody may spawn, e.g. around the robot.
 
     Raises:
-        ValueError: when a pedestrian cannot be placed near any roadmap node.
+        ValueError: when a pedestrian cannot be placed near any roadmap node or edge.
     """
 
     def __init__(
@@ -140,7 +146,7 @@ class Crowd:
         self._rng = rng
         self._wall_xy = np.asarray(walls_xy, dtype=float).reshape(-1, 2, 2)
         self._walls = Segments(self._wall_xy)
-        self._grid_reach_m = max(params.wall_cutoff_m, params.radius_m + 2.0 * _NEAR_SLACK_M)
+        self._grid_reach_m = max(wall_reach_m(params), params.radius_m + 2.0 * _NEAR_SLACK_M)
         self._grid = SegmentGrid(self._walls, self._grid_reach_m)
         # candidates found around the old centres cover the projection around the new ones up to this move
         self._max_move_m = 0.5 * (self._grid_reach_m - params.radius_m - _NEAR_SLACK_M)

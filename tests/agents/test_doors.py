@@ -59,8 +59,8 @@ def test_yaw_rate_matches_motion_and_negative_swing() -> None:
     leaf = _door(swing_deg=-90.0)
     previous = leaf.yaw_rad
     rates = []
-    for _ in range(int(11.0 / DT)):
-        leaf.update(0.0, DT, FAR)
+    for k in range(1, int(11.0 / DT) + 1):
+        leaf.update(k * DT, DT, FAR)
         assert leaf.yaw_rad - previous == pytest.approx(leaf.yaw_rate_rad_s * DT, abs=1e-12)
         rates.append((leaf.stage, leaf.yaw_rate_rad_s))
         previous = leaf.yaw_rad
