@@ -4,10 +4,13 @@ MuJoCo simulates prism-modelled wheeled robots in office worlds with walking peo
 RGB-D cameras feed range-flow odometry and the 3D-PTG reactive navigator. See README.md for the CLI.
 """
 
+import ctypes.util
 import logging
 import os
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede any mujoco import
+# Headless rendering through EGL; without an EGL library, MuJoCo's GL is disabled (it would fail at import) and
+# depth cameras fall back to ray casting. Must precede any mujoco import.
+os.environ.setdefault("MUJOCO_GL", "egl" if ctypes.util.find_library("EGL") else "disable")
 
 __version__ = "0.1.0"
 

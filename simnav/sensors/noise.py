@@ -36,7 +36,7 @@ def depth_noise(
     valid = depth_m > 0
     z = depth_m.astype(np.float64)
     if k_per_m > 0:
-        z = z + rng.normal(0.0, 1.0, z.shape) * k_per_m * z * z
+        z = z + rng.standard_normal(z.shape, dtype=np.float32) * (k_per_m * z * z)
     if quantum_m > 0:
         step = quantum_m * np.maximum(z * z, 1e-6)
         z = np.round(z / step) * step
@@ -46,23 +46,31 @@ def depth_noise(
     return np.where(valid, z, 0.0).astype(np.float32)
 
 
-def grazing_mask(points_optical: np.ndarray, max_angle_rad: float) -> np.ndarray:
+def grazing_mask(depth_m: np.ndarray, K: np.ndarray, max_angle_rad: float) -> np.ndarray:
     """(H, W) bool: pixels whose surface is seen at more than ``max_angle_rad`` from its normal.
 
-    Normals come from the cross product of horizontal and vertical neighbour differences of the back-projected
-    (H, W, 3) points; pixels on depth discontinuities get arbitrary normals and are dropped too, as real
-    structured-light and ToF cameras do at object edges.
+    With P = z (x, y, 1), x = (u - cx)/f, y = (v - cy)/f, the surface normal is proportional to
+    (-z_u, -z_v, x z_u + y z_v + z/f) and n.P = z^2/f, so the angle follows from the depth gradient alone:
+    cos^2 = (z/f)^2 / ((1 + x^2 + y^2) |n|^2). Pixels on depth discontinuities get a huge gradient and are
+    dropped too, as real structured-light and ToF cameras do at object edges. Border pixels are kept.
+
+    Args:
+        depth_m: (H, W) z-depth, m (0 = invalid).
+        K: (3, 3) intrinsics with fx = fy = f.
     """
-    p = points_optical.astype(np.float32, copy=False)
-    du = np.zeros_like(p)
-    dv = np.zeros_like(p)
-    du[:, 1:-1] = p[:, 2:] - p[:, :-2]
-    dv[1:-1, :] = p[2:, :] - p[:-2, :]
-    normal = np.cross(du, dv)
-    n2 = np.einsum("hwc,hwc->hw", normal, normal)
-    p2 = np.einsum("hwc,hwc->hw", p, p)
-    dot = np.einsum("hwc,hwc->hw", normal, p)
-    # |cos| < cos(max) <=> dot^2 < cos(max)^2 |n|^2 |p|^2 (no square roots)
-    grazing = dot * dot < np.float32(np.cos(max_angle_rad) ** 2) * n2 * p2
-    grazing[n2 == 0] = False  # image border or flat neighbourhood: no normal to judge
+    z = depth_m.astype(np.float32, copy=False)
+    f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
+    h, w = z.shape
+    z_u = np.zeros_like(z)
+    z_v = np.zeros_like(z)
+    z_u[:, 1:-1] = (z[:, 2:] - z[:, :-2]) * 0.5
+    z_v[1:-1, :] = (z[2:, :] - z[:-2, :]) * 0.5
+    x = ((np.arange(w, dtype=np.float32) - cx) / f)[None, :]
+    y = ((np.arange(h, dtype=np.float32) - cy) / f)[:, None]
+    n_z = x * z_u + y * z_v + z / f
+    n2 = z_u * z_u + z_v * z_v + n_z * n_z
+    zf2 = (z / f) ** 2
+    grazing = zf2 < np.float32(np.cos(max_angle_rad) ** 2) * (1 + x * x + y * y) * n2
+    grazing[:, [0, -1]] = False
+    grazing[[0, -1], :] = False
     return grazing

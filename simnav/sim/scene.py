@@ -68,6 +68,8 @@ def _set_options(spec: mujoco.MjSpec, robot: RobotSpec, physics_dt_s: float) -> 
     spec.visual.map.znear = 0.02
     spec.visual.map.zfar = 60.0
     spec.visual.quality.shadowsize = 0
+    spec.visual.quality.numslices = 12  # coarser tessellation of capsules, spheres and cylinders: cheaper renders
+    spec.visual.quality.numstacks = 6
     cams = [resolve_rgbd(s) for s in robot.sensors if isinstance(s, RGBDSensor)]
     spec.visual.global_.offwidth = max([c.width for c in cams], default=64)
     spec.visual.global_.offheight = max([c.height for c in cams], default=64)

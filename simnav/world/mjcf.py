@@ -140,22 +140,24 @@ def _shelf_solids(sh) -> list[Solid]:
 def add_static_world(spec: mujoco.MjSpec, world: WorldSpec) -> int:
     """Add the floor and all static geometry (collision primitives + merged render meshes); returns #solids."""
     solids = world_solids(world)
-    _add_floor(spec)
+    _add_floor(spec, solids)
     for k, solid in enumerate(solids):
         _add_collision_solid(spec, solid, f"static{k}")
     _add_render_meshes(spec, solids)
     return len(solids)
 
 
-def _add_floor(spec: mujoco.MjSpec) -> None:
+def _add_floor(spec: mujoco.MjSpec, solids: list[Solid], margin_m: float = 5.0) -> None:
+    """A thin box under the whole world for cameras (a finite box renders much faster than an infinite plane on
+    a software renderer) and an infinite plane for rays."""
     tex = spec.add_texture(name="floor_tex", type=mujoco.mjtTexture.mjTEXTURE_2D,
                            builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256, height=256,
                            rgb1=[0.55, 0.55, 0.52], rgb2=[0.45, 0.45, 0.43])
     mat = spec.add_material(name="floor_mat", texrepeat=[0.5, 0.5], texuniform=True)
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
-    floor = spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
-                                    material="floor_mat", group=GROUP_VISUAL, contype=0, conaffinity=0)
-    floor.pos = [0, 0, 0]
+    reach = [max((abs(s.center_m[i]) + max(s.half_m[:2]) for s in solids), default=0.0) + margin_m for i in (0, 1)]
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_BOX, size=[reach[0], reach[1], 0.01],
+                            pos=[0, 0, -0.01], material="floor_mat", group=GROUP_VISUAL, contype=0, conaffinity=0)
     spec.worldbody.add_geom(name="floor_rays", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
                             group=GROUP_COLLISION, contype=0, conaffinity=0)
 

@@ -105,3 +105,27 @@ def test_walking_person_segmentation_and_motion():
     assert cosine > 0.95  # same direction in the optical frame (x right, y down, z forward)
     assert np.linalg.norm(measured) == pytest.approx(np.linalg.norm(expected), rel=0.3)
     assert np.all(frame.velocity_optical[:, frame.body_id == 0] == 0)  # static scenery does not move
+
+
+def test_without_opengl_cameras_fall_back_to_ray_casting_and_say_so_once():
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import logging; logging.basicConfig(level=logging.WARNING)\n"
+        "from simnav.robot import load_robot\n"
+        "from simnav.sim import Simulator\n"
+        "from tests.conftest import box_room_spec\n"
+        "for _ in range(2):\n"
+        "    sim = Simulator(box_room_spec(), load_robot('minibot'))\n"
+        "    sim.step(0.0, 0.0)\n"
+        "    frame = sim.latest('depth')\n"
+        "    print(sim.sensors[1].backend, round(float((frame.depth_m > 0).mean()), 2))\n"
+    )
+    env = {**os.environ, "MUJOCO_GL": "disable"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
+                         check=True)
+    lines = out.stdout.split()
+    assert lines[0] == "raycast" and float(lines[1]) > 0.5
+    assert out.stderr.count("fall back to ray casting") == 1

@@ -161,3 +161,19 @@ def test_people_never_end_inside_walls_or_each_other():
             for p in xy:
                 assert min(poly.distance(Point(p)) for poly in walls) >= radius - 1e-3
         assert np.isfinite(sim.crowd.positions_xy).all()
+
+
+def test_doors_and_other_robots_move_as_mocap_bodies():
+    world = load_world("office")
+    with Simulator(world, load_robot("giraff", ["sensors=[]"]), SimConfig(pedestrians=2, wanderers=1)) as sim:
+        door_quats, wanderer_xy = [], []
+        for _ in range(40):
+            for _ in range(20):  # 1 s
+                sim.step(0.0, 0.0)
+            door_quats.append(sim.data.mocap_quat[sim.index.door_mocap].copy())
+            wanderer_xy.append(sim.data.mocap_pos[sim.index.wanderer_mocap, :2].copy())
+        yaw = [2 * np.arctan2(q[:, 3], q[:, 0]) for q in door_quats]
+        expected = np.array([door.yaw_rad for door in sim.doors])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (yaw[-1] - expected))), 0, atol=0.05)
+    assert np.ptp(np.array(yaw), axis=0).max() > 1.0  # some door swung during the 40 s
+    assert np.linalg.norm(wanderer_xy[-1] - wanderer_xy[0]) > 1.0
