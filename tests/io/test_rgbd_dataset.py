@@ -93,7 +93,8 @@ def test_index_files_follow_tum_layout(tmp_path):
     motion = (root / "motion.txt").read_text().splitlines()
     assert motion[3] == "1305031102.175304 motion/1305031102.175304.npz"
     raw = np.load(root / "motion/1305031102.175304.npz")
-    assert list(raw.keys()) == ["velocity_optical"] and raw["velocity_optical"].shape == (3, H, W)
+    assert list(raw.keys()) == ["shape", "pixels", "velocity_optical"]  # only the moving pixels are stored
+    assert tuple(raw["shape"]) == (3, H, W) and raw["velocity_optical"].shape == (len(raw["pixels"]), 3)
 
 
 def test_two_writes_give_byte_identical_trees(tmp_path):
