@@ -20,7 +20,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-import simnav  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+import simnav  # first: it chooses MUJOCO_GL before mujoco loads
 import mujoco
 from simnav.agents import Crowd, RoadmapGraph
 from simnav.mission.record import RecordSettings, record

@@ -78,7 +78,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str] | None, source: s
         if not parts:
             raise ConfigError(f"{source}: empty key in {item!r}")
         node: Any = result
-        for depth, part in enumerate(parts[:-1]):
+        for part in parts[:-1]:
             node = _child(node, part, key, source, create=True)
         _assign(node, parts[-1], yaml.safe_load(raw), key, source)
     return result

@@ -111,8 +111,8 @@ def record(
     robot_set: SetOption = None,
     world_set: Annotated[list[str] | None, typer.Option("--world-set", metavar="KEY=VALUE",
                                                         help="Override a world field (repeatable).")] = None,
-    sim_set: Annotated[list[str] | None, typer.Option("--sim-set", metavar="KEY=VALUE",
-                                                      help="Override a simulator field, e.g. physics_dt_s=0.002.")] = None,
+    sim_set: Annotated[list[str] | None, typer.Option(
+        "--sim-set", metavar="KEY=VALUE", help="Override a simulator field, e.g. physics_dt_s=0.002.")] = None,
 ) -> None:
     """Drive a robot along the roadmap among people and write a dataset (TUM, CARMEN, TUM RGB-D).
 

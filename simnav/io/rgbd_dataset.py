@@ -479,7 +479,7 @@ def associate_stamps(first_s: np.ndarray, second_s: np.ndarray, max_dt_s: float)
     lo = np.searchsorted(sorted_b, a - max_dt_s, side="left")
     hi = np.searchsorted(sorted_b, a + max_dt_s, side="right")
     ii = np.repeat(np.arange(len(a)), hi - lo)
-    jj = order[np.concatenate([np.arange(l, h) for l, h in zip(lo, hi, strict=True)] or [np.zeros(0, int)])]
+    jj = order[np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)] or [np.zeros(0, int)])]
     jj = jj.astype(np.int64)
     diff = np.abs(a[ii] - b[jj])
     keep = diff < max_dt_s

@@ -38,7 +38,6 @@ from simnav.sensors.readings import LaserScan, PointCloud, Reading, RGBDFrame, W
 from simnav.sim import SimConfig, Simulator
 from simnav.world.schema import WorldSpec
 
-
 MAX_FRAMES_IN_FLIGHT = 32
 
 

@@ -17,7 +17,7 @@ from shapely.geometry import Polygon
 
 from simnav.robot.spec import Prism, RGBDSensor, RobotSpec
 from simnav.sensors.presets import resolve_rgbd
-from simnav.world.mjcf import CONTYPE_MOVING, CONTYPE_STATIC, CONTYPE_ROBOT, GROUP_ROBOT
+from simnav.world.mjcf import CONTYPE_MOVING, CONTYPE_ROBOT, CONTYPE_STATIC, GROUP_ROBOT
 
 ROBOT_BODY = "robot"
 BASE_SITE = "robot_base"

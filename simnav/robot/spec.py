@@ -175,7 +175,7 @@ class RobotSpec(FrozenModel):
         if dup:
             raise ValueError(f"sensor names must be unique, repeated: {sorted(dup)}")
         bands = sorted((p.z_min_m, p.z_max_m, p.name) for p in self.prisms)
-        for (z0a, z1a, na), (z0b, _, nb) in zip(bands, bands[1:], strict=False):
+        for (_, z1a, na), (z0b, _, nb) in zip(bands, bands[1:], strict=False):
             if z0b < z1a - 1e-9:
                 raise ValueError(f"prisms '{na}' and '{nb}' overlap in height ({z1a} > {z0b})")
         for k, sensor in enumerate(self.sensors):
@@ -207,4 +207,5 @@ class RobotSpec(FrozenModel):
                 return s
         from simnav.errors import UnknownNameError
 
-        raise UnknownNameError(f"robot '{self.name}' has no sensor '{name}'; available: {[s.name for s in self.sensors]}")
+        names = [s.name for s in self.sensors]
+        raise UnknownNameError(f"robot '{self.name}' has no sensor '{name}'; available: {names}")

@@ -5,7 +5,10 @@ A robot YAML names a preset and overrides only what differs (``preset: hokuyo_ut
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from simnav.errors import UnknownNameError
 
@@ -80,13 +83,11 @@ class Lidar2DParams:
     dropout_prob: float
     latency_s: float
 
-    def angles_rad(self) -> "np.ndarray":
+    def angles_rad(self) -> np.ndarray:
         """(beams,) beam angles in the sensor frame, centred on +x, counter-clockwise increasing.
 
         A 360-degree scanner does not repeat its first beam at the end.
         """
-        import numpy as np
-
         full_circle = self.fov_rad >= 2 * np.pi - 1e-9
         step = self.fov_rad / (self.beams if full_circle else self.beams - 1)
         return -self.fov_rad / 2 + step * np.arange(self.beams) + (step / 2 if full_circle else 0.0)
@@ -126,8 +127,6 @@ def _pick(value, default):
 
 def resolve_lidar2d(sensor) -> Lidar2DParams:
     """Merge a :class:`simnav.robot.spec.Lidar2DSensor` with its preset."""
-    import math
-
     p = lookup(LIDAR2D_PRESETS, sensor.preset, "lidar2d")
     return Lidar2DParams(
         beams=_pick(sensor.beams, p.beams), fov_rad=math.radians(_pick(sensor.fov_deg, p.fov_deg)),
@@ -139,8 +138,6 @@ def resolve_lidar2d(sensor) -> Lidar2DParams:
 
 def resolve_lidar3d(sensor) -> Lidar3DParams:
     """Merge a :class:`simnav.robot.spec.Lidar3DSensor` with its preset."""
-    import math
-
     p = lookup(LIDAR3D_PRESETS, sensor.preset, "lidar3d")
     lo, hi = _pick(sensor.vertical_fov_deg, p.vertical_fov_deg)
     return Lidar3DParams(
@@ -153,8 +150,6 @@ def resolve_lidar3d(sensor) -> Lidar3DParams:
 
 def resolve_rgbd(sensor) -> RGBDParams:
     """Merge a :class:`simnav.robot.spec.RGBDSensor` with its preset."""
-    import math
-
     p = lookup(RGBD_PRESETS, sensor.preset, "rgbd")
     return RGBDParams(
         width=_pick(sensor.width, p.width), height=_pick(sensor.height, p.height),

@@ -241,7 +241,8 @@ class _GLBackend:
         self._rect = mujoco.MjrRect(0, 0, self._w, self._h)
         self._seg = np.empty((self._h, self._w, 3), np.uint8)
         self._zbuf = np.empty((self._h, self._w), np.float32)
-        near, far = np.float32(model.vis.map.znear * model.stat.extent), np.float32(model.vis.map.zfar * model.stat.extent)
+        near = np.float32(model.vis.map.znear * model.stat.extent)
+        far = np.float32(model.vis.map.zfar * model.stat.extent)
         self._far = float(far)
         c = -(far + near) / (far - near)
         d = -(np.float32(2) * far * near) / (far - near)
@@ -274,7 +275,8 @@ class _GLBackend:
         return depth, body_id, rgb
 
     def _body_ids(self, seg: np.ndarray) -> np.ndarray:
-        segid = seg[..., 0].astype(np.int32) | (seg[..., 1].astype(np.int32) << 8) | (seg[..., 2].astype(np.int32) << 16)
+        seg = seg.astype(np.int32)
+        segid = seg[..., 0] | (seg[..., 1] << 8) | (seg[..., 2] << 16)
         table = np.full(self._scene.ngeom + 2, -1, dtype=np.int32)
         for g in self._scene.geoms[: self._scene.ngeom]:
             if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:

@@ -28,7 +28,7 @@ from simnav.sensors.wheels import WheelEncoders
 from simnav.sim.config import SimConfig
 from simnav.sim.scene import build_scene
 from simnav.world.footprint import obstacle_segments
-from simnav.world.mjcf import PEDESTRIAN_RADIUS_M, WANDERER_RADIUS_M
+from simnav.world.mjcf import WANDERER_RADIUS_M
 from simnav.world.schema import WorldSpec
 
 log = logging.getLogger(__name__)
@@ -88,9 +88,9 @@ class Simulator:
         """
         if seed is not None:
             self._seed_seq = np.random.SeedSequence(seed)
-        streams = self._seed_seq.spawn(3 + len(self.sensors))
-        self._rng_crowd, self._rng_wanderers, self._rng_misc = (np.random.default_rng(s) for s in streams[:3])
-        self._rng_sensors = [np.random.default_rng(s) for s in streams[3:]]
+        streams = self._seed_seq.spawn(2 + len(self.sensors))
+        self._rng_crowd, self._rng_wanderers = (np.random.default_rng(s) for s in streams[:2])
+        self._rng_sensors = [np.random.default_rng(s) for s in streams[2:]]
         mujoco.mj_resetData(self.model, self.data)
         self._place_robot(spawn)
         self._reset_agents()
@@ -117,9 +117,12 @@ class Simulator:
         x, y, _ = self.data.qpos[self._qs].tolist()
         keep_out = np.array([[x, y, self.robot_radius_m + 0.5]])
         agents = self.world.agents
-        self.crowd = Crowd(self.roadmap, self._walls_xy, self.pedestrian_count, self._rng_crowd,
-                           speed_mean_m_s=agents.speed_mean_m_s, speed_std_m_s=agents.speed_std_m_s,
-                           keep_out=keep_out)
+        try:
+            self.crowd = Crowd(self.roadmap, self._walls_xy, self.pedestrian_count, self._rng_crowd,
+                               speed_mean_m_s=agents.speed_mean_m_s, speed_std_m_s=agents.speed_std_m_s,
+                               keep_out=keep_out)
+        except ValueError as err:
+            raise SimnavError(f"world '{self.world.name}': {err}; try fewer people (--agents)") from None
         keep_out = np.vstack([keep_out, np.column_stack([self.crowd.positions_xy,
                                                          np.full(self.crowd.count, 0.6)])])
         self.wanderers = Wanderers(self.roadmap, self.wanderer_count, self._rng_wanderers,

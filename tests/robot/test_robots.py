@@ -94,7 +94,8 @@ def test_unknown_field_and_bad_values(tmp_path):
     with pytest.raises(UnknownNameError, match="hokuyo_urg04lx"):
         from simnav.sensors.presets import resolve_lidar2d
 
-        resolve_lidar2d(load_robot(write(tmp_path, ROBOT_YAML.replace("preset: hokuyo_urg04lx", "preset: x"))).sensors[0])
+        robot = load_robot(write(tmp_path, ROBOT_YAML.replace("preset: hokuyo_urg04lx", "preset: x")))
+        resolve_lidar2d(robot.sensors[0])
 
 
 def test_overrides_by_index_and_name():
