@@ -177,3 +177,19 @@ def test_doors_and_other_robots_move_as_mocap_bodies():
     np.testing.assert_allclose(np.angle(np.exp(1j * (yaw[-1] - expected))), 0, atol=0.05)
     assert np.ptp(np.array(yaw), axis=0).max() > 1.0  # some door swung during the 40 s
     assert np.linalg.norm(wanderer_xy[-1] - wanderer_xy[0]) > 1.0
+
+
+def test_driving_into_a_closed_door_is_a_moving_body_contact():
+    door = dict(hinge=[4.5, 1.5], width_m=0.9, closed_yaw_deg=90, open_s=5, closed_s=100, move_s=1.0,
+                phase_s=6.0, auto_open_radius_m=0)  # closed from t = 0 for 100 s, never opened for the robot
+    world = box_room_spec(doors=[door])
+    with Simulator(world, load_robot("giraff", LIDAR_ONLY)) as sim:
+        sim.step(0.0, 0.0)
+        scan = sim.latest("laser_front")
+        centre = np.argmin(np.abs(scan.angles_rad))
+        assert scan.ranges_m[centre] == pytest.approx(4.5 - 0.02 - 3.22, abs=0.03)  # the leaf, not the wall
+        for _ in range(100):
+            sim.step(0.4, 0.0)
+    kinds = {(e.kind, e.other) for e in sim.contact_events}
+    assert ("door", "door0") in kinds
+    assert sim.pose_xy_yaw[0] < 4.5 - 0.26 + 0.03
