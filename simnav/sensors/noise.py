@@ -33,17 +33,19 @@ def depth_noise(
     quantised in disparity, i.e. with a step ``quantum_m * z^2`` (1 mm at 1 m for the default); random pixels drop
     out.
     """
-    valid = depth_m > 0
-    z = depth_m.astype(np.float64)
+    z = depth_m.astype(np.float32)  # a copy
+    valid = z > 0
+    z2 = z * z
     if k_per_m > 0:
-        z = z + rng.standard_normal(z.shape, dtype=np.float32) * (k_per_m * z * z)
+        z += rng.standard_normal(z.shape, dtype=np.float32) * np.float32(k_per_m) * z2
     if quantum_m > 0:
-        step = quantum_m * np.maximum(z * z, 1e-6)
+        step = np.maximum(np.float32(quantum_m) * z2, np.float32(1e-9))
         z = np.round(z / step) * step
     if dropout_prob > 0:
-        valid &= rng.random(z.shape) >= dropout_prob
+        valid &= rng.random(z.shape, dtype=np.float32) >= dropout_prob
     valid &= np.isfinite(z) & (z > 0)
-    return np.where(valid, z, 0.0).astype(np.float32)
+    z[~valid] = 0
+    return z
 
 
 def grazing_mask(depth_m: np.ndarray, K: np.ndarray, max_angle_rad: float) -> np.ndarray:

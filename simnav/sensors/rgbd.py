@@ -99,12 +99,13 @@ class RGBDCamera:
         else:
             depth, body_id, rgb = self._raycast(data)
         p = self.params
-        points = self._rays_optical * depth[..., None]
-        ideal = np.where((depth >= p.min_range_m) & (depth <= p.max_range_m), depth, 0.0)
-        ideal[grazing_mask(depth, self.pinhole.K, p.grazing_angle_rad)] = 0.0
+        # ideal depth: range limits, then surfaces seen at grazing angles are null
+        ideal = np.where((depth >= p.min_range_m) & (depth <= p.max_range_m), depth, 0).astype(np.float32)
+        ideal[grazing_mask(depth, self.pinhole.K, p.grazing_angle_rad)] = 0
         noisy = depth_noise(ideal, rng, p.noise_k_per_m, p.depth_quantum_m, p.dropout_prob)
+        # ground truth: which body each pixel sees and how the seen point moves
         body_id = np.where(depth > 0, body_id, -1).astype(np.int32)
-        velocity = self._pixel_velocity(data, points, body_id, twists)
+        velocity = self._pixel_velocity(data, depth, body_id, twists)
         return RGBDFrame(sensor=self.name, stamp_s=stamp_s, depth_m=noisy, rgb=rgb, K=self.pinhole.K,
                          T_base_sensor=self.T_base_sensor, body_id=body_id, velocity_optical=velocity)
 
@@ -115,20 +116,19 @@ class RGBDCamera:
         T[:3, 3] = data.cam_xpos[self._cam_id]
         return T
 
-    def _pixel_velocity(self, data, points_optical, body_id, twists) -> np.ndarray:
+    def _pixel_velocity(self, data, depth, body_id, twists) -> np.ndarray:
         """(3, H, W) float32 world velocity of each observed point, expressed in the optical frame, m/s."""
-        h, w = body_id.shape
-        out = np.zeros((h, w, 3), dtype=np.float64)
-        moving = body_id > 0
-        moving[moving] = np.any(twists[body_id[moving]] != 0, axis=1)
+        out = np.zeros((3, *body_id.shape), dtype=np.float32)
+        moving_bodies = np.flatnonzero(np.any(twists != 0, axis=1))
+        moving = np.isin(body_id, moving_bodies)
         if moving.any():
             T = self.T_world_optical(data)
             ids = body_id[moving]
-            p_world = points_optical[moving] @ T[:3, :3].T + T[:3, 3]
-            lever = p_world - data.xpos[ids]
+            p_optical = self._rays_optical[moving] * depth[moving, None]
+            lever = p_optical @ T[:3, :3].T + T[:3, 3] - data.xpos[ids]
             v_world = twists[ids, :3] + np.cross(twists[ids, 3:], lever)
-            out[moving] = v_world @ T[:3, :3]
-        return np.ascontiguousarray(out.transpose(2, 0, 1), dtype=np.float32)
+            out[:, moving] = (v_world @ T[:3, :3]).T
+        return out
 
     def _raycast(self, data):
         h, w = self.params.height, self.params.width
@@ -136,7 +136,7 @@ class RGBDCamera:
             self._caster = _CameraRays(self._model, self._cam_id, self._raycast_dirs_mjcam, self._robot_body,
                                        self.params.max_range_m * 2)
         dist, geom, normal = self._caster.cast(data)
-        depth = (dist.reshape(h, w) * self._unit_z).astype(np.float64)
+        depth = (dist.reshape(h, w) * self._unit_z).astype(np.float32)
         body_id = np.where(geom >= 0, self._model.geom_bodyid[np.maximum(geom, 0)], -1).reshape(h, w)
         rgb = None
         if self.params.rgb:
