@@ -119,6 +119,19 @@ def _deep_copy(data: Any) -> Any:
     return data
 
 
+def load_named(kind: str, model: type[ModelT], name_or_path: str | Path, overrides: list[str] | None) -> ModelT:
+    """Load a shipped ``kind`` file (``robots``, ``worlds``) by name or a YAML path, apply overrides, validate.
+
+    The ``name`` field defaults to the file's stem.
+    """
+    from simnav import assets
+
+    path = assets.resolve(kind, name_or_path)
+    data = apply_overrides(read_yaml(path), overrides)
+    data.setdefault("name", path.stem)
+    return validate(model, data, str(path))
+
+
 def dump_yaml(model: BaseModel) -> str:
     """The resolved config as YAML (stable key order, for reproducible run folders)."""
     return yaml.safe_dump(model.model_dump(mode="json"), sort_keys=False)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from simnav import assets
-from simnav.config import apply_overrides, read_yaml, validate
+from simnav.config import load_named
 from simnav.robot.interface import RobotInterface
 from simnav.robot.spec import RobotSpec
 
@@ -24,10 +24,7 @@ def load_robot(name_or_path: str | Path, overrides: list[str] | None = None) -> 
         UnknownNameError: unknown name (the message lists the available robots).
         ConfigError: malformed YAML or an invalid field (the message names the file and the field).
     """
-    path = assets.resolve("robots", name_or_path)
-    data = apply_overrides(read_yaml(path), overrides)
-    data.setdefault("name", path.stem)
-    return validate(RobotSpec, data, str(path))
+    return load_named("robots", RobotSpec, name_or_path, overrides)
 
 
 def list_robots() -> list[str]:

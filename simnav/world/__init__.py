@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from simnav import assets
-from simnav.config import apply_overrides, read_yaml, validate
+from simnav.config import load_named
 from simnav.world.schema import WorldSpec
 
 
@@ -19,10 +19,7 @@ def load_world(name_or_path: str | Path, overrides: list[str] | None = None) -> 
         UnknownNameError: unknown name (the message lists the available worlds).
         ConfigError: malformed YAML or an invalid field (the message names the file and the field).
     """
-    path = assets.resolve("worlds", name_or_path)
-    data = apply_overrides(read_yaml(path), overrides)
-    data.setdefault("name", path.stem)
-    spec = validate(WorldSpec, data, str(path))
+    spec = load_named("worlds", WorldSpec, name_or_path, overrides)
     if spec.generator is not None:
         from simnav.world.generator import generate
 
