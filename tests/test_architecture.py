@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 PURE = ["simnav.geometry", "simnav.odometry", "simnav.navigation", "simnav.sensors.readings", "simnav.robot",
-        "simnav.agents", "simnav.io"]
+        "simnav.metrics", "simnav.agents", "simnav.io"]
 
 
 def test_pure_packages_do_not_load_the_simulator():

@@ -38,7 +38,7 @@ def user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return fn(*args, **kwargs)
         except SimnavError as err:
-            err_console.print(f"[bold red]error:[/] {err}", highlight=False, markup=True)
+            err_console.print(f"[bold red]error:[/] {err}", highlight=False, markup=True, soft_wrap=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:
             err_console.print("[yellow]interrupted[/]")
@@ -175,3 +175,7 @@ def _update_latest(out_dir: Path) -> None:
 def main() -> None:
     """Entry point of the ``simnav`` script."""
     app()
+
+
+# Commands defined in other modules register themselves on `app` when imported.
+from simnav.cli import odometry as _odometry_commands  # noqa: E402, F401
