@@ -1,0 +1,228 @@
+"""SRF-Odometry: planar laser odometry from symmetric range flow and multi-scan alignment (thesis §3.G).
+
+Each beam gives the symmetric range-flow constraint (3.91 / 3.93): gradient, range and point are taken at the
+mean of the two scans. Constraints are pre-weighted (3.96–3.97) and minimised with the smooth truncated parabola
+(3.94, 3.95, 3.100, ``c = 4 MAD``) by IRLS; every pyramid level repeats estimate-and-warp (Algorithm 2) and
+filters its solution in the eigenspace of its covariance (3.106, 3.107).
+
+Modes (§3.G.5, §3.G.9): ``"CA"`` aligns the new scan with the previous one; ``"KA"`` with the keyscan warped
+into the previous scan's frame; ``"MA"`` with both jointly (3.99). A :class:`KeyscanPolicy` decides when the
+newest scan becomes the keyscan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from simnav.geometry import se2
+from simnav.odometry.rangeflow import (
+    MIN_ROWS,
+    Alignment,
+    CoarseToFine,
+    LevelGeometry,
+    RangeFlowConfig,
+    RangeFlowOdometry,
+    ScanFrame,
+    Solution,
+    coarse_to_fine,
+    flow_terms,
+    irls_truncated_parabola,
+    make_config,
+    preweights_srf,
+    require,
+    unit_information,
+    warp_scan,
+)
+
+MODES = ("CA", "KA", "MA")
+"""Consecutive alignment, keyscan alignment, multi-scan alignment."""
+
+
+@runtime_checkable
+class KeyscanPolicy(Protocol):
+    """Decides when the newest scan replaces the keyscan (§3.G.7)."""
+
+    def needs_new_keyscan(self, translation_m: float, rotation_rad: float) -> bool:
+        """Whether to take the newest scan as keyscan, given its motion from the current keyscan.
+
+        Args:
+            translation_m: distance from the keyscan pose, m.
+            rotation_rad: heading change from the keyscan pose, rad (signed).
+        """
+        ...
+
+
+@dataclass(frozen=True)
+class ThresholdKeyscanPolicy:
+    """Keyscan criterion with fixed translation and rotation limits.
+
+    This stands in until the learned error model of §3.G.7 is fitted for our scanners: there the working region
+    is the set of (translation, rotation) whose simulated mean error stays below 10 mm / 0.1 deg, bounded by a
+    fitted polynomial. Here the region is a plain box, chosen conservatively.
+
+    Attributes:
+        max_translation_m: new keyscan beyond this distance from the current one, m.
+        max_rotation_rad: new keyscan beyond this heading change, rad.
+    """
+
+    max_translation_m: float = 0.3
+    max_rotation_rad: float = 0.15
+
+    def needs_new_keyscan(self, translation_m: float, rotation_rad: float) -> bool:
+        """True outside the box ``|t| <= max_translation_m``, ``|rotation| <= max_rotation_rad``."""
+        return translation_m > self.max_translation_m or abs(rotation_rad) > self.max_rotation_rad
+
+
+@dataclass(frozen=True)
+class SRFConfig(RangeFlowConfig):
+    """SRF-Odometry options (shared ones: :class:`simnav.odometry.rangeflow.RangeFlowConfig`).
+
+    Attributes:
+        mode: ``"CA"`` (consecutive), ``"KA"`` (keyscan) or ``"MA"`` (multi-scan, 3.99).
+        levels: pyramid levels; None = ``ceil(log2(beams) - 4.3)`` (fewer if the coarsest would have under
+            ``min_level_beams``).
+        max_rewarps: estimate-and-warp iterations per level (Algorithm 2).
+        rewarp_tolerance: stop a level's iterations once the norm of the last solve is below this (per scan;
+            metres and radians mixed, as in Algorithm 2).
+        irls_max_iterations: most reweighted solves per level iteration.
+        irls_min_decrease: keep reweighting while the cost falls below this fraction of the previous one.
+        mad_factor: ``c = mad_factor * MAD`` of the least-squares residuals (§3.G.8).
+        filter_kl: ``k_l`` of the motion filter at the coarsest level (3.107: ``0.02 e^-(l-1)``).
+        filter_ke: ``k_e`` at the coarsest level (3.107: ``5e3 e^-(l-1)``).
+        sensor_sigma_m: ``sigma_s`` of the pre-weights (3.96), m.
+        preweight_kd: ``K_D`` (3.96).
+        preweight_k2d: ``K_2D`` (3.96).
+        keyscan_policy: when to take a new keyscan (modes KA and MA).
+    """
+
+    mode: str = "CA"
+    levels: int | None = None
+    max_rewarps: int = 3
+    rewarp_tolerance: float = 0.05
+    irls_max_iterations: int = 10
+    irls_min_decrease: float = 0.995
+    mad_factor: float = 4.0
+    filter_kl: float = 0.02
+    filter_ke: float = 5e3
+    sensor_sigma_m: float = 0.02
+    preweight_kd: float = 0.01
+    preweight_k2d: float = 2e-4
+    keyscan_policy: KeyscanPolicy = ThresholdKeyscanPolicy()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(self.mode in MODES, f"unknown SRF mode {self.mode!r}; available: {', '.join(MODES)}")
+        require(self.levels is None or self.levels >= 1, "levels must be None or >= 1")
+        require(self.max_rewarps >= 1, "max_rewarps must be >= 1")
+        require(self.irls_max_iterations >= 0, "irls_max_iterations must be >= 0")
+        require(self.mad_factor > 0, "mad_factor must be > 0")
+        require(self.filter_kl >= 0 and self.filter_ke >= 0, "filter_kl and filter_ke must be >= 0")
+        require(self.sensor_sigma_m > 0, "sensor_sigma_m must be > 0")
+        require(isinstance(self.keyscan_policy, KeyscanPolicy),
+                "keyscan_policy must have a needs_new_keyscan(translation_m, rotation_rad) method")
+
+
+class SRFOdometry(RangeFlowOdometry):
+    """Symmetric Range Flow-based Odometry (§3.G) in mode CA, KA or MA.
+
+    Args:
+        **config: overrides of :class:`SRFConfig` fields; an unknown name or mode raises
+            :class:`simnav.errors.ConfigError` listing the allowed ones.
+    """
+
+    def __init__(self, **config) -> None:
+        self.config: SRFConfig = make_config(SRFConfig, config, "SRF")
+        cfg = self.config
+        self._ctf = CoarseToFine(cfg.filter_kl, cfg.filter_ke, cfg.max_rewarps, cfg.rewarp_tolerance)
+        super().__init__()
+
+    def reset(self) -> None:
+        """Forget all history (scans and keyscan); the next scan starts a new odom frame."""
+        super().reset()
+        self._key: ScanFrame | None = None
+        self._T_key_prev = np.eye(3)  # pose of the previous scan in the keyscan frame
+        self._key_is_prev = True
+        self._key_failed = False
+
+    def _levels(self, beams: int) -> int:
+        if self.config.levels is not None:
+            return self.config.levels
+        return max(1, math.ceil(math.log2(beams) - 4.3))
+
+    def _align(self, ref: ScanFrame, new: ScanFrame, xi_prior: np.ndarray) -> Alignment:
+        """Coarse-to-fine alignment of ``new`` with the previous scan and/or the warped keyscan."""
+        # 1. References: the previous scan, the keyscan rendered from the previous scan's pose, or both.
+        refs = [ref.pyramid]
+        self._key_failed = False
+        if self.config.mode != "CA" and self._key is not None and not self._key_is_prev:
+            key_w = self._warped_key(ref)
+            if key_w is None:
+                self._key_failed = True
+            else:
+                refs = [key_w] if self.config.mode == "KA" else [ref.pyramid, key_w]
+        # 2. Estimate-and-warp through the pyramid.
+        return coarse_to_fine(refs, ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+
+    def _warped_key(self, ref: ScanFrame) -> list[np.ndarray] | None:
+        """Keyscan pyramid warped into the previous scan's frame keeping the farthest points (§3.G.5), or None
+        when too little of it projects."""
+        key = self._key
+        if len(key.geoms) < len(ref.geoms):
+            return None
+        T_prev_key = se2.inverse(self._T_key_prev)
+        warped = [warp_scan(key.pyramid[lv], key.geoms[lv], T_prev_key, g, keep="farthest")
+                  for lv, g in enumerate(ref.geoms)]
+        need = max(self.config.min_valid_points, math.ceil(self.config.min_valid_fraction * ref.beams))
+        return warped if np.count_nonzero(warped[0]) >= need else None
+
+    def _solve_level(self, refs: Sequence[np.ndarray], warped: np.ndarray, geom: LevelGeometry,
+                     step: int) -> Solution | None:
+        """Symmetric constraints (3.93) of every reference, pre-weighted (3.96–3.97), stacked (3.99) and solved
+        with truncated-parabola IRLS (3.94, 3.95, 3.100)."""
+        cfg = self.config
+        A_w, b_w, A_raw, levers = [], [], [], []
+        for r_ref in refs:
+            terms = flow_terms(r_ref, warped, geom, symmetric=True)
+            if len(terms.rows) < MIN_ROWS:
+                continue
+            w = preweights_srf(terms, geom, cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
+            A_w.append(terms.A * w[:, None])
+            b_w.append(-w * terms.rt_m[terms.rows])
+            A_raw.append(terms.A)
+            levers.append(terms.mean_range_m)
+        if not A_w:
+            return None
+        A, b = (A_w[0], b_w[0]) if len(A_w) == 1 else (np.vstack(A_w), np.concatenate(b_w))
+        sol = irls_truncated_parabola(A, b, cfg.irls_max_iterations, cfg.mad_factor, cfg.irls_min_decrease,
+                                      float(np.mean(levers)))
+        if geom is not self._info_geom:
+            return sol
+        return replace(sol, information=unit_information(A_raw[0] if len(A_raw) == 1 else np.vstack(A_raw)))
+
+    def _after_scan(self, new: ScanFrame | None, T_prev_new: np.ndarray, measured: bool) -> dict:
+        """Keyscan bookkeeping (§3.G.7): move the previous-scan pose and replace the keyscan when the policy,
+        a failed keyscan warp or a lost track asks for it."""
+        failed, self._key_failed = self._key_failed, False
+        if self.config.mode == "CA":
+            return {"mode": "CA"}
+        if new is None or self._key is None or not measured or failed:
+            updated = self._set_key(new)
+        else:
+            T_key_new = self._T_key_prev @ T_prev_new
+            translation = math.hypot(T_key_new[0, 2], T_key_new[1, 2])
+            rotation = math.atan2(T_key_new[1, 0], T_key_new[0, 0])
+            if self.config.keyscan_policy.needs_new_keyscan(translation, rotation):
+                updated = self._set_key(new)
+            else:
+                self._T_key_prev, self._key_is_prev, updated = T_key_new, False, False
+        return {"mode": self.config.mode, "new_keyscan": updated}
+
+    def _set_key(self, frame: ScanFrame | None) -> bool:
+        """Makes ``frame`` the keyscan (None clears it); returns whether a keyscan was set."""
+        self._key, self._T_key_prev, self._key_is_prev = frame, np.eye(3), True
+        return frame is not None
