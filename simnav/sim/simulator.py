@@ -313,6 +313,15 @@ class Simulator:
         self._latest[reading.sensor] = reading
         return reading
 
+    def teleport(self, x_m: float, y_m: float, yaw_rad: float) -> None:
+        """Put the robot at a pose (world frame) at rest, without advancing time (for sampling sensor views)."""
+        self.data.qpos[self._qs] = [x_m, y_m, yaw_rad]
+        self.data.qvel[self._vs] = 0.0
+        self._v_m_s = self._w_rad_s = 0.0
+        self._commands = deque([(-math.inf, 0.0, 0.0)])
+        mujoco.mj_forward(self.model, self.data)
+        self._history.append((self.time_s, *self.pose_xy_yaw))
+
     def capture_now(self, sensor: str) -> Reading:
         """Take a reading of ``sensor`` at the current time, outside its schedule (its noise stream advances)."""
         names = [s.name for s in self.sensors]

@@ -193,3 +193,12 @@ def test_driving_into_a_closed_door_is_a_moving_body_contact():
     kinds = {(e.kind, e.other) for e in sim.contact_events}
     assert ("door", "door0") in kinds
     assert sim.pose_xy_yaw[0] < 4.5 - 0.26 + 0.03
+
+
+def test_teleport_then_capture(box_room):
+    with Simulator(box_room, load_robot("giraff", LIDAR_ONLY + ["sensors.laser_front.noise_std_m=0"])) as sim:
+        sim.teleport(1.0, 2.0, math.pi)
+        scan = sim.capture_now("laser_front")
+        assert sim.pose_xy_yaw == pytest.approx((1.0, 2.0, math.pi))
+    centre = np.argmin(np.abs(scan.angles_rad))
+    assert scan.ranges_m[centre] == pytest.approx(1.0 - 0.22 - 0.05, abs=1e-3)  # facing -x: wall face at 0.05
