@@ -1,4 +1,5 @@
-"""Odometry: estimates of the robot's motion from its own sensors. Pure numpy; no simulator imports."""
+"""Odometry: estimates of the robot's motion from its own sensors (numpy, with numba kernels for range flow; no
+simulator imports)."""
 
 from __future__ import annotations
 

@@ -20,6 +20,12 @@ Conventions:
 Warping (3.73–3.75) projects the *segments* between consecutive beams of the warped scan onto the target grid
 (exact ray/segment intersection for every target beam a segment spans) and keeps the closest range per beam
 (z-buffer), as SRF-Odometry does; the keyscan of the multi-scan formulation keeps the farthest instead (§3.G.5).
+
+The per-beam work (pyramid, gradients, warping, constraints and pre-weights, IRLS with its normal equations, the
+motion filter) runs in Numba kernels (``@njit(cache=True)``: compiled on first use, then loaded from
+``__pycache__``). Written with numpy, these stages take about a thousand small array calls per scan, 2–4 ms for
+1080 beams against a budget of 1 ms (``scripts/bench_scan_odometry_runtime.py``). Public functions keep their
+numpy signatures and wrap the kernels (``_*_kernel``, ``_*_at`` for one beam).
 """
 
 from __future__ import annotations
@@ -27,13 +33,15 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
-from typing import TypeVar
+from dataclasses import dataclass, fields, replace
+from functools import cached_property
+from typing import NamedTuple, TypeVar
 
 import numpy as np
+from numba import njit
 
 from simnav.errors import ConfigError
-from simnav.odometry.base import OdometryEstimate, PlanarScan, laser_to_base_motion, planar_scan
+from simnav.odometry.base import OdometryEstimate, PlanarScan, planar_scan
 from simnav.sensors.readings import LaserScan
 
 TWO_PI = 2.0 * math.pi
@@ -47,6 +55,11 @@ MIN_ROWS = 6
 """Fewest constraints a pyramid level needs to be solved."""
 
 C = TypeVar("C")
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous float64 array (no copy when it already is one), as the compiled kernels take."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -294,14 +307,27 @@ def gated_average(ranges_m: np.ndarray, window: np.ndarray, gate_m: float) -> np
     Returns:
         (m,) smoothed ranges, 0 = invalid.
     """
-    r = np.append(ranges_m, 0.0)
-    nb = r[window]
-    centre = nb[:, 2:3]
-    w = GAUSS5 * np.clip(gate_m - np.abs(nb - centre), 0.0, None) * (nb > 0)
-    total = w.sum(axis=1)
-    out = np.zeros(len(nb))
-    np.divide((w * nb).sum(axis=1), total, out=out, where=(centre[:, 0] > 0) & (total > 0))
+    out = np.empty(len(window))
+    _gated_average_kernel(_f64(ranges_m), np.ascontiguousarray(window, dtype=np.int64), float(gate_m), out)
     return out
+
+
+@njit(cache=True)
+def _gated_average_kernel(r: np.ndarray, window: np.ndarray, gate_m: float, out: np.ndarray) -> None:
+    """Compiled :func:`gated_average`: writes the (m,) smoothed ranges into ``out``."""
+    n = len(r)
+    for i in range(window.shape[0]):
+        centre = r[window[i, 2]]
+        total = weighted = 0.0
+        if centre > 0:
+            for j in range(5):
+                k = window[i, j]
+                v = r[k] if k < n else 0.0
+                w = GAUSS5[j] * (gate_m - abs(v - centre))
+                if v > 0 and w > 0:
+                    total += w
+                    weighted += w * v
+        out[i] = weighted / total if total > 0 else 0.0
 
 
 def build_pyramid(ranges_m: np.ndarray, geoms: Sequence[LevelGeometry], gate_m: float,
@@ -317,7 +343,7 @@ def build_pyramid(ranges_m: np.ndarray, geoms: Sequence[LevelGeometry], gate_m: 
     Returns:
         List of (n_l,) range arrays, finest first.
     """
-    levels = [gated_average(ranges_m, geoms[0].window, gate_m) if smooth_finest else np.asarray(ranges_m, float)]
+    levels = [gated_average(ranges_m, geoms[0].window, gate_m) if smooth_finest else _f64(ranges_m)]
     for g in geoms[1:]:
         levels.append(gated_average(levels[-1], g.parent_window, gate_m))
     return levels
@@ -344,17 +370,35 @@ def range_gradient(r_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray,
         ``(dr_dtheta, ok)``: (n,) gradient in m/rad, and (n,) bool mask of beams where it is defined (valid beam
         with at least one valid neighbour).
     """
-    valid = r_m > 0
-    p, q = geom.prev, geom.next
-    vb = valid[p] & geom.has_prev
-    vf = valid[q] & geom.has_next
-    back = (r_m - r_m[p]) / geom.gap_prev
-    fwd = (r_m[q] - r_m) / geom.gap_next
-    db = np.hypot(x_m - x_m[p], y_m - y_m[p])
-    df = np.hypot(x_m[q] - x_m, y_m[q] - y_m)
-    both = (df * back + db * fwd) / np.maximum(db + df, 1e-12)
-    grad = np.where(vb & vf, both, np.where(vb, back, np.where(vf, fwd, 0.0)))
-    return grad, valid & (vb | vf)
+    n = len(r_m)
+    grad, ok = np.empty(n), np.empty(n, dtype=np.bool_)
+    _range_gradient_kernel(_f64(r_m), _f64(x_m), _f64(y_m), geom.prev, geom.next, geom.has_prev, geom.has_next,
+                           geom.gap_next, grad, ok)
+    return grad, ok
+
+
+@njit(cache=True)
+def _range_gradient_kernel(r: np.ndarray, x: np.ndarray, y: np.ndarray, prev: np.ndarray, nxt: np.ndarray,
+                           has_prev: np.ndarray, has_next: np.ndarray, gap_next: np.ndarray, grad: np.ndarray,
+                           ok: np.ndarray) -> None:
+    """Compiled :func:`range_gradient`: writes ``grad`` (m/rad) and ``ok`` per beam.
+
+    A beam's backward difference and distance are its previous beam's forward ones (``next[prev[n]] = n``).
+    """
+    n = len(r)
+    fwd, dist = np.empty(n), np.empty(n)
+    for i in range(n):
+        q = nxt[i]
+        fwd[i] = (r[q] - r[i]) / gap_next[i]
+        dist[i] = math.sqrt((x[q] - x[i]) ** 2 + (y[q] - y[i]) ** 2)
+    for i in range(n):
+        p, q = prev[i], nxt[i]
+        vb, vf = has_prev[i] and r[p] > 0, has_next[i] and r[q] > 0
+        if vb and vf:
+            grad[i] = (dist[i] * fwd[p] + dist[p] * fwd[i]) / max(dist[p] + dist[i], 1e-12)
+        else:
+            grad[i] = fwd[p] if vb else (fwd[i] if vf else 0.0)
+        ok[i] = r[i] > 0 and (vb or vf)
 
 
 def neighbour_difference(v: np.ndarray, ok: np.ndarray, geom: LevelGeometry) -> np.ndarray:
@@ -368,11 +412,31 @@ def neighbour_difference(v: np.ndarray, ok: np.ndarray, geom: LevelGeometry) -> 
     Returns:
         (n,) difference per beam (units of ``v``).
     """
-    p, q = geom.prev, geom.next
-    vb = ok[p] & geom.has_prev & ok
-    vf = ok[q] & geom.has_next & ok
-    central = 0.5 * (v[q] - v[p])
-    return np.where(vb & vf, central, np.where(vb, v - v[p], np.where(vf, v[q] - v, 0.0)))
+    v, ok = _f64(v), np.ascontiguousarray(ok, dtype=np.bool_)
+    out = np.empty(len(v))
+    _neighbour_difference_kernel(v, ok, geom.prev, geom.next, geom.has_prev, geom.has_next, out)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _neighbour_difference_at(v: np.ndarray, ok: np.ndarray, i: int, p: int, q: int, has_prev: bool,
+                             has_next: bool) -> float:
+    """:func:`neighbour_difference` of beam ``i`` with previous ``p`` and next ``q``."""
+    vb = ok[i] and has_prev and ok[p]
+    vf = ok[i] and has_next and ok[q]
+    if vb and vf:
+        return 0.5 * (v[q] - v[p])
+    if vb:
+        return v[i] - v[p]
+    return v[q] - v[i] if vf else 0.0
+
+
+@njit(cache=True)
+def _neighbour_difference_kernel(v: np.ndarray, ok: np.ndarray, prev: np.ndarray, nxt: np.ndarray,
+                                 has_prev: np.ndarray, has_next: np.ndarray, out: np.ndarray) -> None:
+    """Compiled :func:`neighbour_difference`: writes the (n,) differences into ``out``."""
+    for i in range(len(v)):
+        out[i] = _neighbour_difference_at(v, ok, i, prev[i], nxt[i], has_prev[i], has_next[i])
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -389,13 +453,49 @@ def grid_index(phi_rad: np.ndarray, geom: LevelGeometry) -> np.ndarray:
     Returns:
         (k,) fractional indices in [0, n) (circular) or [0, n-1]; NaN outside a non-circular field of view.
     """
-    a0 = geom.angles_rad[0]
-    offset = phi_rad - a0
-    offset += TWO_PI * (offset < 0.0)
-    if geom.uniform_step_rad > 0:
-        u = offset / geom.uniform_step_rad
-        return u if geom.circular else np.where(u <= geom.n - 1 + 1e-9, np.minimum(u, geom.n - 1), np.nan)
-    return np.interp(a0 + offset, geom.index_angles, geom.index_values, left=np.nan, right=np.nan)
+    phi = _f64(phi_rad)
+    out = np.empty(len(phi))
+    _grid_index_kernel(phi, geom.angles_rad[0], geom.uniform_step_rad, geom.circular, geom.index_angles,
+                       geom.index_values, out)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_angles: np.ndarray,
+                   index_values: np.ndarray) -> float:
+    """:func:`grid_index` of one direction; ``step`` is the uniform spacing or 0."""
+    offset = phi - a0
+    if offset < 0.0:
+        offset += TWO_PI
+    if step > 0:
+        u = offset / step
+        if circular:
+            return u
+        last = index_values[-1]  # n - 1
+        return min(u, last) if u <= last + 1e-9 else np.nan
+    x = a0 + offset
+    if not index_angles[0] <= x <= index_angles[-1]:
+        return np.nan
+    # Linear interpolation between the knots around x (as np.interp).
+    lo, hi = 0, len(index_angles) - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if index_angles[mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    if x == index_angles[hi]:
+        return index_values[hi]
+    slope = (index_values[hi] - index_values[lo]) / (index_angles[hi] - index_angles[lo])
+    return slope * (x - index_angles[lo]) + index_values[lo]
+
+
+@njit(cache=True)
+def _grid_index_kernel(phi: np.ndarray, a0: float, step: float, circular: bool, index_angles: np.ndarray,
+                       index_values: np.ndarray, out: np.ndarray) -> None:
+    """Compiled :func:`grid_index`: writes the (k,) fractional indices into ``out``."""
+    for i in range(len(phi)):
+        out[i] = _grid_index_at(phi[i], a0, step, circular, index_angles, index_values)
 
 
 def warp_scan(ranges_m: np.ndarray, src: LevelGeometry, T_dst_src: np.ndarray, dst: LevelGeometry,
@@ -417,55 +517,97 @@ def warp_scan(ranges_m: np.ndarray, src: LevelGeometry, T_dst_src: np.ndarray, d
     Returns:
         (n_dst,) warped ranges, 0 where nothing projects.
     """
-    # 1. Move the points into the target frame and find their fractional beam index (NaN = invalid/outside).
-    R, t = T_dst_src[:2, :2], T_dst_src[:2, 2]
-    x, y = ranges_m * src.cos, ranges_m * src.sin
-    xw = R[0, 0] * x + R[0, 1] * y + t[0]
-    yw = R[1, 0] * x + R[1, 1] * y + t[1]
-    u = np.where(ranges_m > 0, grid_index(np.arctan2(yw, xw), dst), np.nan)
-    n = dst.n
-    # 2. Segments between neighbouring valid points and the target beams each one spans.
-    ua, ub = u[src.seg_a], u[src.seg_b]
-    if dst.circular:
-        ub = ub - n * np.round((ub - ua) / n)
-    sel = np.flatnonzero(np.abs(ub - ua) < 0.5 * n)  # False for NaN
-    a, b, ua, ub = src.seg_a[sel], src.seg_b[sel], ua[sel], ub[sel]
-    k0 = np.ceil(np.minimum(ua, ub) - 1e-9).astype(np.int64)
-    count = np.maximum(np.floor(np.maximum(ua, ub) + 1e-9).astype(np.int64) - k0 + 1, 0)
-    seg = np.repeat(np.arange(len(sel)), count)
-    k = np.arange(len(seg)) - (np.cumsum(count) - count - k0)[seg]
-    if dst.circular:
-        k %= n
-    else:
-        inside = (k >= 0) & (k < n)
-        seg, k = seg[inside], k[inside]
-    # 3. Exact range of each spanned target beam on its segment: r = (Pa x D) / (e x D), clipped to the ends.
-    xa, ya = xw[a], yw[a]
-    dx, dy = xw[b] - xa, yw[b] - ya
-    num = xa * dy - ya * dx
-    ra, rb = np.hypot(xa, ya), np.hypot(xw[b], yw[b])
-    r_lo, r_hi = np.minimum(ra, rb)[seg], np.maximum(ra, rb)[seg]
-    den = dst.cos[k] * dy[seg] - dst.sin[k] * dx[seg]
-    r_seg = np.clip(np.divide(num[seg], den, out=r_lo.copy(), where=np.abs(den) > 1e-12), r_lo, r_hi)
-    # 4. Isolated points go to the nearest beam.
-    lone = np.isfinite(u)
-    lone[a] = False
-    lone[b] = False
-    if lone.any():
-        lone = np.flatnonzero(lone)
-        k = np.concatenate([k, np.rint(u[lone]).astype(np.int64) % n])
-        r_seg = np.concatenate([r_seg, np.hypot(xw[lone], yw[lone])])
-    # 5. Z-buffer.
-    if keep == "closest":
-        out = np.full(n, np.inf)
-        np.minimum.at(out, k, r_seg)
-        out[np.isinf(out)] = 0.0
-    elif keep == "farthest":
-        out = np.zeros(n)
-        np.maximum.at(out, k, r_seg)
-    else:
+    if keep not in ("closest", "farthest"):
         raise ValueError(f"keep must be 'closest' or 'farthest', got {keep!r}")
+    return _warp_kernel(_f64(ranges_m), src.cos, src.sin, src.seg_a, src.seg_b, _f64(T_dst_src), dst.cos, dst.sin,
+                        dst.angles_rad[0], dst.uniform_step_rad, dst.circular, dst.index_angles, dst.index_values,
+                        keep == "farthest")
+
+
+@njit(cache=True)
+def _warp_kernel(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, seg_a: np.ndarray,
+                 seg_b: np.ndarray, T: np.ndarray, dst_cos: np.ndarray, dst_sin: np.ndarray, a0: float, step: float,
+                 circular: bool, index_angles: np.ndarray, index_values: np.ndarray, farthest: bool) -> np.ndarray:
+    """Compiled :func:`warp_scan`; the target grid is given by its cos/sin and :func:`grid_index` knots."""
+    # 1. Move the points into the target frame and find their fractional beam index (NaN = invalid/outside).
+    xw, yw, rho, u = _moved_points(ranges, src_cos, src_sin, T, a0, step, circular, index_angles, index_values)
+    # 2. Project the segments and isolated points with a z-buffer.
+    return _zbuffer(xw, yw, rho, u, seg_a, seg_b, dst_cos, dst_sin, circular, farthest)
+
+
+@njit(cache=True)
+def _moved_points(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, T: np.ndarray, a0: float,
+                  step: float, circular: bool, index_angles: np.ndarray,
+                  index_values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(m,) x, y and range (m) of the source points in the target frame ``T @ p``, and their fractional index on
+    the target grid (:func:`grid_index`; NaN for invalid points)."""
+    m = len(ranges)
+    xw, yw, rho, u = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    for i in range(m):  # separate loops: the arithmetic vectorises
+        x, y = ranges[i] * src_cos[i], ranges[i] * src_sin[i]
+        xw[i] = T[0, 0] * x + T[0, 1] * y + T[0, 2]
+        yw[i] = T[1, 0] * x + T[1, 1] * y + T[1, 2]
+        rho[i] = math.sqrt(xw[i] * xw[i] + yw[i] * yw[i])
+    for i in range(m):
+        u[i] = math.atan2(yw[i], xw[i])
+    for i in range(m):
+        u[i] = _grid_index_at(u[i], a0, step, circular, index_angles, index_values) if ranges[i] > 0 else np.nan
+    return xw, yw, rho, u
+
+
+@njit(cache=True)
+def _zbuffer(xw: np.ndarray, yw: np.ndarray, rho: np.ndarray, u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray,
+             dst_cos: np.ndarray, dst_sin: np.ndarray, circular: bool, farthest: bool) -> np.ndarray:
+    """(n,) target ranges from moved points (:func:`_moved_points`): each segment between neighbouring valid
+    points fills the target beams it spans, points without a valid neighbour the nearest beam; each beam keeps
+    the closest (or farthest) range, 0 where nothing projects."""
+    n, m = len(dst_cos), len(u)
+    out = np.zeros(n) if farthest else np.full(n, np.inf)
+    paired = np.zeros(m, dtype=np.bool_)
+    for s in range(len(seg_a)):
+        a, b = seg_a[s], seg_b[s]
+        ua, ub = u[a], u[b]
+        if circular:
+            ub -= n * np.rint((ub - ua) / n)
+        if not abs(ub - ua) < 0.5 * n:  # False for NaN
+            continue
+        paired[a] = True
+        paired[b] = True
+        _project_segment(out, xw[a], yw[a], rho[a], xw[b], yw[b], rho[b], ua, ub, dst_cos, dst_sin, circular,
+                         farthest)
+    for i in range(m):
+        if not paired[i] and np.isfinite(u[i]):
+            _keep(out, int(np.rint(u[i])) % n, rho[i], farthest)
+    if not farthest:
+        for k in range(n):
+            if out[k] == np.inf:
+                out[k] = 0.0
     return out
+
+
+@njit(cache=True, inline="always")
+def _project_segment(out: np.ndarray, xa: float, ya: float, ra: float, xb: float, yb: float, rb: float, ua: float,
+                     ub: float, dst_cos: np.ndarray, dst_sin: np.ndarray, circular: bool, farthest: bool) -> None:
+    """Exact range ``r = (Pa x D) / (e x D)`` (clipped to the end ranges ``ra``, ``rb``) of every target beam
+    between fractional indices ``ua`` and ``ub`` of the segment from point a to point b, z-buffered into ``out``."""
+    n = len(out)
+    k0, k1 = math.ceil(min(ua, ub) - 1e-9), math.floor(max(ua, ub) + 1e-9)
+    dx, dy = xb - xa, yb - ya
+    num = xa * dy - ya * dx
+    r_lo, r_hi = min(ra, rb), max(ra, rb)
+    for kk in range(k0, k1 + 1):
+        k = kk % n if circular else kk
+        if 0 <= k < n:
+            den = dst_cos[k] * dy - dst_sin[k] * dx
+            r = num / den if abs(den) > 1e-12 else r_lo
+            _keep(out, k, min(max(r, r_lo), r_hi), farthest)
+
+
+@njit(cache=True, inline="always")
+def _keep(out: np.ndarray, k: int, r: float, farthest: bool) -> None:
+    """Z-buffer: beam ``k`` of ``out`` keeps the closer (or farther) of its range and ``r``."""
+    if (r > out[k]) if farthest else (r < out[k]):
+        out[k] = r
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -512,19 +654,79 @@ def flow_terms(r_ref_m: np.ndarray, r_new_m: np.ndarray, geom: LevelGeometry, sy
     Returns:
         The constraints; see :class:`FlowTerms`.
     """
-    valid = (r_ref_m > 0) & (r_new_m > 0)
-    r = np.where(valid, 0.5 * (r_ref_m + r_new_m) if symmetric else r_ref_m, 0.0)
-    x, y = r * geom.cos, r * geom.sin
-    grad, grad_ok = range_gradient(r, x, y, geom)
-    rows = np.flatnonzero(grad_ok)
-    c, s, g, rr = geom.cos[rows], geom.sin[rows], grad[rows], r[rows]
+    n = len(r_ref_m)
+    grad, ok = np.empty(n), np.empty(n, dtype=np.bool_)
+    rows, A, rt, valid, mean_r = _flow_terms_kernel(_f64(r_ref_m), _f64(r_new_m), geom.cos, geom.sin, geom.prev,
+                                                    geom.next, geom.has_prev, geom.has_next, geom.gap_next,
+                                                    bool(symmetric), grad, ok)
+    return FlowTerms(rows, A, rt, grad * geom.spacing_rad, ok, valid, mean_r)
+
+
+@njit(cache=True)
+def _flow_terms_kernel(r_ref: np.ndarray, r_new: np.ndarray, cos: np.ndarray, sin: np.ndarray, prev: np.ndarray,
+                       nxt: np.ndarray, has_prev: np.ndarray, has_next: np.ndarray, gap_next: np.ndarray,
+                       symmetric: bool, grad: np.ndarray,
+                       ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Compiled :func:`flow_terms`: writes the gradient (m/rad) and its mask into ``grad``, ``ok`` and returns
+    ``(rows, A, rt_m, valid, mean_range_m)``."""
+    n = len(r_ref)
+    # 1. Geometry used per beam (mean of both scans, or the reference) and temporal difference.
+    valid, r, x, y, rt = np.empty(n, dtype=np.bool_), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        valid[i] = r_ref[i] > 0 and r_new[i] > 0
+        r[i] = (0.5 * (r_ref[i] + r_new[i]) if symmetric else r_ref[i]) if valid[i] else 0.0
+        x[i], y[i] = r[i] * cos[i], r[i] * sin[i]
+        rt[i] = r_new[i] - r_ref[i] if valid[i] else 0.0
+    # 2. Angular gradient.
+    _range_gradient_kernel(r, x, y, prev, nxt, has_prev, has_next, gap_next, grad, ok)
+    # 3. One constraint per beam with a gradient.
+    rows = np.flatnonzero(ok)
     A = np.empty((len(rows), 3))
-    A[:, 0] = c + g * s / rr
-    A[:, 1] = s - g * c / rr
-    A[:, 2] = x[rows] * s - y[rows] * c - g  # x sin - y cos vanishes for points on their own beam
-    rt = np.where(valid, r_new_m - r_ref_m, 0.0)
-    mean_r = float(rr.mean()) if len(rows) else 0.0
-    return FlowTerms(rows, A, rt, grad * geom.spacing_rad, grad_ok, valid, mean_r)
+    total = 0.0
+    for j in range(len(rows)):
+        i = rows[j]
+        c, s, g = cos[i], sin[i], grad[i]
+        A[j, 0] = c + g * s / r[i]
+        A[j, 1] = s - g * c / r[i]
+        A[j, 2] = x[i] * s - y[i] * c - g  # x sin - y cos vanishes for points on their own beam
+        total += r[i]
+    return rows, A, rt, valid, total / len(rows) if len(rows) else 0.0
+
+
+@dataclass(frozen=True)
+class Preweights:
+    """Pre-weights ``w = 1 / sqrt(floor + k_first (R_a² + R_t²) + k_second R_aa² + k_rt_a R_ta²)`` of the
+    constraints, with the derivatives per beam (``R_aa``, ``R_ta``: :func:`neighbour_difference` of the gradient
+    ``R_a`` and of ``R_t``).
+
+    Attributes:
+        floor: constant term, m².
+        k_first: weight of the first-order terms.
+        k_second: weight of ``R_aa²``.
+        k_rt_a: weight of ``R_ta²``.
+        normalise: scale the weights to a maximum of 1.
+    """
+
+    floor: float
+    k_first: float
+    k_second: float
+    k_rt_a: float = 0.0
+    normalise: bool = False
+
+    @classmethod
+    def rf2o(cls, eps_m2: float, k_d: float) -> Preweights:
+        """RF2O's (3.71): ``1 / sqrt(eps + R_a² + R_t² + K_d (R_aa² + R_ta²))``, normalised."""
+        return cls(eps_m2, 1.0, k_d, k_d, True)
+
+    @classmethod
+    def srf(cls, sigma_m: float, k_d: float, k_2d: float) -> Preweights:
+        """SRF's (3.96): ``1 / sqrt(sigma_s² + K_D (R_a² + R_t²) + K_2D R_aa²)``, not normalised."""
+        return cls(sigma_m**2, k_d, k_2d)
+
+    @cached_property
+    def args(self) -> tuple[float, float, float, float, bool]:
+        """The fields as the compiled kernels take them."""
+        return float(self.floor), float(self.k_first), float(self.k_second), float(self.k_rt_a), bool(self.normalise)
 
 
 def preweights_rf2o(terms: FlowTerms, geom: LevelGeometry, eps_m2: float, k_d: float) -> np.ndarray:
@@ -542,11 +744,7 @@ def preweights_rf2o(terms: FlowTerms, geom: LevelGeometry, eps_m2: float, k_d: f
     Returns:
         (m,) weights of ``terms.rows``, normalised to a maximum of 1.
     """
-    g_aa = neighbour_difference(terms.grad_beam_m, terms.grad_ok, geom)
-    rt_a = neighbour_difference(terms.rt_m, terms.valid, geom)
-    i = terms.rows
-    var = eps_m2 + terms.grad_beam_m[i] ** 2 + terms.rt_m[i] ** 2 + k_d * (g_aa[i] ** 2 + rt_a[i] ** 2)
-    return _normalised(1.0 / np.sqrt(var))
+    return _preweights(terms, geom, Preweights.rf2o(eps_m2, k_d))
 
 
 def preweights_srf(terms: FlowTerms, geom: LevelGeometry, sigma_m: float, k_d: float, k_2d: float) -> np.ndarray:
@@ -565,15 +763,97 @@ def preweights_srf(terms: FlowTerms, geom: LevelGeometry, sigma_m: float, k_d: f
     Returns:
         (m,) weights of ``terms.rows``, not normalised (the multi-scan solver stacks several sets).
     """
-    g_aa = neighbour_difference(terms.grad_beam_m, terms.grad_ok, geom)
-    i = terms.rows
-    var = sigma_m**2 + k_d * (terms.grad_beam_m[i] ** 2 + terms.rt_m[i] ** 2) + k_2d * g_aa[i] ** 2
-    return 1.0 / np.sqrt(var)
+    return _preweights(terms, geom, Preweights.srf(sigma_m, k_d, k_2d))
 
 
-def _normalised(w: np.ndarray) -> np.ndarray:
-    """``w / max(w)`` (unchanged when empty)."""
-    return w / w.max() if len(w) else w
+def _preweights(terms: FlowTerms, geom: LevelGeometry, model: Preweights) -> np.ndarray:
+    """(m,) pre-weights of ``terms.rows`` under ``model``."""
+    return _preweights_kernel(terms.rows, terms.grad_beam_m, terms.grad_ok, terms.rt_m, terms.valid, geom.prev,
+                              geom.next, geom.has_prev, geom.has_next, *model.args)
+
+
+@njit(cache=True)
+def _preweights_kernel(rows: np.ndarray, grad_beam: np.ndarray, grad_ok: np.ndarray, rt: np.ndarray,
+                       valid: np.ndarray, prev: np.ndarray, nxt: np.ndarray, has_prev: np.ndarray,
+                       has_next: np.ndarray, floor: float, k_first: float, k_second: float, k_rt_a: float,
+                       normalise: bool) -> np.ndarray:
+    """Compiled :func:`_preweights`: (m,) weights of ``rows`` (:class:`Preweights` fields as arguments)."""
+    w = np.empty(len(rows))
+    for j in range(len(rows)):
+        i = rows[j]
+        p, q, hp, hn = prev[i], nxt[i], has_prev[i], has_next[i]
+        g_aa = _neighbour_difference_at(grad_beam, grad_ok, i, p, q, hp, hn)
+        var = floor + k_first * (grad_beam[i] ** 2 + rt[i] ** 2) + k_second * g_aa**2
+        if k_rt_a != 0.0:
+            var += k_rt_a * _neighbour_difference_at(rt, valid, i, p, q, hp, hn) ** 2
+        w[j] = 1.0 / math.sqrt(var)
+    if normalise and len(w):
+        w /= w.max()
+    return w
+
+
+class WeightedConstraints(NamedTuple):
+    """The pre-weighted range-flow constraints of one level, ``A xi = b``, ready for a robust solver.
+
+    Attributes:
+        A: (m, 3) pre-weighted coefficients of ``(vx, vy, w)``.
+        b: (m,) pre-weighted right-hand side ``-w R_t``, m.
+        information: (3, 3) :func:`unit_information` of the unweighted coefficients, or None if not asked for.
+        mean_range_m: mean range of the constraints, m.
+        rows: number of constraints.
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    information: np.ndarray | None
+    mean_range_m: float
+    rows: int
+
+
+def weighted_constraints(r_ref_m: np.ndarray, r_new_m: np.ndarray, geom: LevelGeometry, symmetric: bool,
+                         preweights: Preweights, information: bool = False) -> WeightedConstraints:
+    """:func:`flow_terms` pre-weighted by ``preweights`` in one pass (the level solvers' hot path).
+
+    Args:
+        r_ref_m: (n,) reference ranges on the level grid, 0 = invalid.
+        r_new_m: (n,) new ranges warped onto the same grid, 0 = invalid.
+        geom: the level's geometry.
+        symmetric: geometry at the mean of both scans (see :func:`flow_terms`).
+        preweights: the pre-weight model.
+        information: also return the geometric information of the constraints.
+
+    Returns:
+        The constraints; see :class:`WeightedConstraints`.
+    """
+    A, b, info, mean_r = _weighted_constraints_kernel(
+        _f64(r_ref_m), _f64(r_new_m), geom.cos, geom.sin, geom.prev, geom.next, geom.has_prev, geom.has_next,
+        geom.gap_next, geom.spacing_rad, bool(symmetric), *preweights.args, bool(information))
+    return WeightedConstraints(A, b, info if information else None, mean_r, len(b))
+
+
+@njit(cache=True)
+def _weighted_constraints_kernel(r_ref: np.ndarray, r_new: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                                 prev: np.ndarray, nxt: np.ndarray, has_prev: np.ndarray, has_next: np.ndarray,
+                                 gap_next: np.ndarray, spacing: np.ndarray, symmetric: bool,
+                                 floor: float, k_first: float, k_second: float, k_rt_a: float, normalise: bool,
+                                 information: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Compiled :func:`weighted_constraints`: ``(A, b, information or zeros, mean_range_m)``."""
+    # 1. Constraints (3.64 / 3.91).
+    n = len(r_ref)
+    grad, ok = np.empty(n), np.empty(n, dtype=np.bool_)
+    rows, A, rt, valid, mean_r = _flow_terms_kernel(r_ref, r_new, cos, sin, prev, nxt, has_prev, has_next, gap_next,
+                                                    symmetric, grad, ok)
+    # 2. Pre-weights (3.71 / 3.96) and the geometric information of the unweighted rows.
+    w = _preweights_kernel(rows, grad * spacing, ok, rt, valid, prev, nxt, has_prev, has_next, floor, k_first,
+                           k_second, k_rt_a, normalise)
+    info = unit_information(A) if information else np.zeros((3, 3))
+    # 3. Weighted rows.
+    b = np.empty(len(rows))
+    for j in range(len(rows)):
+        b[j] = -w[j] * rt[rows[j]]
+        for c in range(3):
+            A[j, c] *= w[j]
+    return A, b, info, mean_r
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -603,46 +883,119 @@ class Solution:
     information: np.ndarray | None = None
 
 
-_UPPER = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
-"""Row and column of the 6 distinct entries of a symmetric (3, 3) matrix."""
+@njit(cache=True)
+def _weighted_solve(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted least squares of ``A xi = b`` with ``At = A^T`` ((3, m), C order: each pass is unit-stride),
+    (m,) ``b`` and (m,) weights (empty = all 1).
+
+    Returns:
+        ``(xi, residuals A xi - b, A^T W A)``.
+    """
+    H, g = _normal_equations(At, b, w)
+    xi = _solve_normal(H, g)
+    r = np.empty(len(b))
+    for i in range(len(b)):
+        r[i] = At[0, i] * xi[0] + At[1, i] * xi[1] + At[2, i] * xi[2] - b[i]
+    return xi, r, H
 
 
-class _LinearSystem:
-    """Stacked constraints ``A xi = b`` ((m, 3), (m,)) with the per-row products that reweighted solves need."""
+@njit(cache=True, fastmath={"reassoc", "contract"})  # reassociation lets the sums vectorise
+def _normal_equations(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(A^T W A, A^T W b)`` ((3, 3), (3,)) of ``A xi = b`` (``At = A^T``) with (m,) weights (empty = all 1)."""
+    h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = 0.0
+    weighted = len(w) > 0
+    for i in range(len(b)):
+        a0, a1, a2 = At[0, i], At[1, i], At[2, i]
+        wi = w[i] if weighted else 1.0
+        wa0, wa1, wa2 = wi * a0, wi * a1, wi * a2
+        h00 += wa0 * a0
+        h01 += wa0 * a1
+        h02 += wa0 * a2
+        h11 += wa1 * a1
+        h12 += wa1 * a2
+        h22 += wa2 * a2
+        g0 += wa0 * b[i]
+        g1 += wa1 * b[i]
+        g2 += wa2 * b[i]
+    H = np.empty((3, 3))
+    H[0, 0], H[0, 1], H[0, 2], H[1, 1], H[1, 2], H[2, 2] = h00, h01, h02, h11, h12, h22
+    H[1, 0], H[2, 0], H[2, 1] = h01, h02, h12
+    return H, np.array([g0, g1, g2])
 
-    def __init__(self, A: np.ndarray, b: np.ndarray) -> None:
-        self.A, self.b = A, b
-        At = np.ascontiguousarray(A.T)
-        self.AA = At[_UPPER[0]] * At[_UPPER[1]]  # (6, m) distinct entries of a_i a_i^T
-        self.Ab = At * b  # (3, m)
 
-    def solve(self, w: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Weighted least squares with (m,) weights (None = 1): ``(xi, residuals A xi - b, A^T W A)``."""
-        h, g = (self.AA.sum(axis=1), self.Ab.sum(axis=1)) if w is None else (self.AA @ w, self.Ab @ w)
-        a, b, c, d, e, f = h.tolist()
-        H = np.array([[a, b, c], [b, d, e], [c, e, f]])
-        xi = _solve_normal(H, g)
-        return xi, self.A @ xi - self.b, H
-
-
+@njit(cache=True)
 def _solve_normal(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Minimum-norm solution of ``H xi = g`` for a symmetric PSD (3, 3) ``H``.
 
     Well-conditioned systems are solved in closed form (adjugate); otherwise directions with eigenvalue below
     1e-12 of the largest get no update (they are unobservable).
     """
-    (a, b, c), (_, d, e), (_, _, f) = H.tolist()
+    a, b, c, d, e, f = H[0, 0], H[0, 1], H[0, 2], H[1, 1], H[1, 2], H[2, 2]
     c0, c1, c2 = d * f - e * e, c * e - b * f, b * e - c * d
     det = a * c0 + b * c1 + c * c2
     if det > 1e-10 * a * d * f > 0:
-        g0, g1, g2 = g.tolist()
         c4, c5 = b * c - a * e, a * f - c * c
-        return np.array([c0 * g0 + c1 * g1 + c2 * g2, c1 * g0 + c5 * g1 + c4 * g2,
-                         c2 * g0 + c4 * g1 + (a * d - b * b) * g2]) / det
-    mu, V = np.linalg.eigh(H)
-    keep = mu > max(mu[-1], 0.0) * 1e-12
-    inv = np.where(keep & (mu > 0), 1.0 / np.where(mu > 0, mu, 1.0), 0.0) if mu[-1] > 0 else np.zeros(3)
-    return V @ (inv * (V.T @ g))
+        return np.array([c0 * g[0] + c1 * g[1] + c2 * g[2], c1 * g[0] + c5 * g[1] + c4 * g[2],
+                         c2 * g[0] + c4 * g[1] + (a * d - b * b) * g[2]]) / det
+    mu, V = eigh3(H)
+    xi = np.zeros(3)
+    for j in range(3):
+        if mu[-1] > 0 and mu[j] > mu[-1] * 1e-12:
+            xi += V[:, j] * ((V[0, j] * g[0] + V[1, j] * g[1] + V[2, j] * g[2]) / mu[j])
+    return xi
+
+
+@njit(cache=True)
+def eigh3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigen-decomposition of a symmetric (3, 3) matrix by cyclic Jacobi rotations (as ``np.linalg.eigh``).
+
+    Args:
+        S: (3, 3) symmetric matrix (only its upper triangle is read).
+
+    Returns:
+        ``(mu, V)``: (3,) eigenvalues in ascending order and (3, 3) orthonormal eigenvectors (columns).
+    """
+    a = np.empty((3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            a[i, j] = a[j, i] = S[i, j]
+    V = np.eye(3)
+    for _ in range(32):  # converges quadratically: a handful of sweeps
+        off = abs(a[0, 1]) + abs(a[0, 2]) + abs(a[1, 2])
+        if not off > 1e-18 * (abs(a[0, 0]) + abs(a[1, 1]) + abs(a[2, 2])):  # also stops on NaN
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if a[p, q] != 0.0:
+                _jacobi_rotate(a, V, p, q)
+    order = [0, 1, 2]  # ascending eigenvalues (insertion sort)
+    for i in (1, 2):
+        for j in range(i, 0, -1):
+            if a[order[j - 1], order[j - 1]] > a[order[j], order[j]]:
+                order[j - 1], order[j] = order[j], order[j - 1]
+    mu, W = np.empty(3), np.empty((3, 3))
+    for c in range(3):
+        mu[c] = a[order[c], order[c]]
+        W[:, c] = V[:, order[c]]
+    return mu, W
+
+
+@njit(cache=True)
+def _jacobi_rotate(a: np.ndarray, V: np.ndarray, p: int, q: int) -> None:
+    """Zeroes ``a[p, q]`` by the rotation ``a <- J^T a J``, ``V <- V J`` (symmetric ``a``)."""
+    theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+    t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+    c = 1.0 / math.sqrt(t * t + 1.0)
+    s = t * c
+    for k in range(3):  # columns p, q
+        akp, akq = a[k, p], a[k, q]
+        a[k, p], a[k, q] = c * akp - s * akq, s * akp + c * akq
+    for k in range(3):  # rows p, q
+        apk, aqk = a[p, k], a[q, k]
+        a[p, k], a[q, k] = c * apk - s * aqk, s * apk + c * aqk
+    a[p, q] = a[q, p] = 0.0
+    for k in range(3):
+        vkp, vkq = V[k, p], V[k, q]
+        V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
 
 
 def weighted_covariance(H: np.ndarray, r: np.ndarray, w: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -660,23 +1013,52 @@ def weighted_covariance(H: np.ndarray, r: np.ndarray, w: np.ndarray | None) -> t
     Returns:
         Eigenvalues (3,) and eigenvectors (3, 3) of the covariance (columns).
     """
-    if w is None:
-        s2, n_eff = float(r @ r), len(r)
-    else:
-        s2, n_eff = float(w @ (r * r)), int(np.count_nonzero(w))
+    return _covariance_eig(_f64(H), _f64(r), np.empty(0) if w is None else _f64(w))
+
+
+@njit(cache=True)
+def _covariance_eig(H: np.ndarray, r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled :func:`weighted_covariance` (empty ``w`` = all 1); NaN when ``H`` is not finite."""
+    s2, n_eff = 0.0, 0
+    for i in range(len(r)):
+        wi = w[i] if len(w) else 1.0
+        s2 += wi * r[i] * r[i]
+        if wi != 0.0:
+            n_eff += 1
     s2 /= max(n_eff - 3, 1)
-    mu, V = np.linalg.eigh(H)
-    observed = mu > max(float(mu[-1]), 0.0) * 1e-12
-    lam = np.clip(s2 / np.where(observed, mu, 1.0), MIN_VARIANCE, MAX_VARIANCE)
-    return np.where(observed, lam, MAX_VARIANCE), V
+    if not np.all(np.isfinite(H)):
+        return np.full(3, np.nan), np.full((3, 3), np.nan)
+    mu, V = eigh3(H)
+    lam = np.full(3, MAX_VARIANCE)
+    for j in range(3):
+        if mu[j] > max(mu[-1], 0.0) * 1e-12:
+            lam[j] = min(max(s2 / mu[j], MIN_VARIANCE), MAX_VARIANCE)
+    return lam, V
 
 
-def _solution(xi: np.ndarray, r: np.ndarray, w: np.ndarray | None, H: np.ndarray, lever_m: float) -> Solution:
-    """Packs a solve into a :class:`Solution`."""
-    lam, V = weighted_covariance(H, r, w)
-    return Solution(xi, (V * lam) @ V.T, H, len(r), lever_m, (lam, V))
+SolveResult = tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]
+"""``(xi, covariance, normal, rows, eigenvalues, eigenvectors)`` of a solve, as the compiled solvers return it."""
 
 
+@njit(cache=True)
+def _solve_result(xi: np.ndarray, r: np.ndarray, H: np.ndarray, w: np.ndarray) -> SolveResult:
+    """Covariance of a (weighted, empty ``w`` = all 1) solve with residuals ``r``, packed as a SolveResult."""
+    lam, V = _covariance_eig(H, r, w)
+    cov = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                cov[i, j] += V[i, k] * lam[k] * V[j, k]
+    return xi, cov, H, len(r), lam, V
+
+
+def _solution(result: SolveResult, lever_m: float) -> Solution:
+    """A :class:`Solution` from a compiled solver's result."""
+    xi, cov, H, rows, lam, V = result
+    return Solution(xi, cov, H, rows, lever_m, (lam, V))
+
+
+@njit(cache=True)
 def cauchy_weights(r: np.ndarray, k: float) -> np.ndarray:
     """IRLS weights of the Cauchy M-estimator (3.68): ``1 / (1 + (r / k)²)``."""
     return 1.0 / (1.0 + (r / k) ** 2)
@@ -697,35 +1079,68 @@ def irls_cauchy(A: np.ndarray, b: np.ndarray, iterations: int, k_ratio: float, l
     Returns:
         The solution.
     """
-    system = _LinearSystem(A, b)
-    xi, r, H = system.solve(None)
-    k = k_ratio * float(np.mean(np.abs(r)))
+    return _solution(_irls_cauchy_kernel(_f64(A), _f64(b), int(iterations), float(k_ratio)), lever_m)
+
+
+@njit(cache=True)
+def _irls_cauchy_kernel(A: np.ndarray, b: np.ndarray, iterations: int, k_ratio: float) -> SolveResult:
+    """Compiled :func:`irls_cauchy`."""
+    At, w = np.ascontiguousarray(A.T), np.empty(0)
+    xi, r, H = _weighted_solve(At, b, w)
+    k = k_ratio * np.mean(np.abs(r))
     if not k > 1e-15:
-        return _solution(xi, r, None, H, lever_m)
-    w = None
+        return _solve_result(xi, r, H, w)
     for _ in range(iterations):
         w = cauchy_weights(r, k)
-        xi, r, H = system.solve(w)
-    return _solution(xi, r, w, H, lever_m)
+        xi, r, H = _weighted_solve(At, b, w)
+    return _solve_result(xi, r, H, w)
 
 
+@njit(cache=True)
 def truncated_parabola_weights(r: np.ndarray, c: float) -> np.ndarray:
     """IRLS weights of the smooth truncated parabola (3.100): ``1 - (r / c)²`` inside ``|r| <= c``, else 0."""
-    return np.clip(1.0 - (r / c) ** 2, 0.0, None)
+    return np.maximum(1.0 - (r / c) ** 2, 0.0)
 
 
+@njit(cache=True)
 def truncated_parabola_energy(r: np.ndarray, c: float) -> float:
     """Cost (3.95): ``sum r²/2 (1 - r²/(2c²))`` inside ``|r| <= c``, ``c²/4`` outside."""
     q = np.minimum((r / c) ** 2, 1.0)
-    return float(0.25 * c * c * np.sum(q * (2.0 - q)))
+    return 0.25 * c * c * np.sum(q * (2.0 - q))
 
 
+@njit(cache=True)
 def _upper_median(v: np.ndarray) -> float:
     """Element of rank ``len(v) // 2`` (the median for odd lengths, the upper median otherwise)."""
-    k = len(v) // 2
-    return float(np.partition(v, k)[k])
+    return _select(v.copy(), len(v) // 2)
 
 
+@njit(cache=True)
+def _select(a: np.ndarray, k: int) -> float:
+    """Element of rank ``k`` of ``a`` (quickselect; reorders ``a``)."""
+    lo, hi = 0, len(a) - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return a[k]
+
+
+@njit(cache=True)
 def median_absolute_deviation(r: np.ndarray) -> float:
     """``median(|r - median(r)|)`` of a non-empty array (upper medians)."""
     return _upper_median(np.abs(r - _upper_median(r)))
@@ -749,28 +1164,53 @@ def irls_truncated_parabola(A: np.ndarray, b: np.ndarray, max_iterations: int, m
     Returns:
         The solution.
     """
-    system = _LinearSystem(A, b)
-    xi, r, H = system.solve(None)
+    return _solution(_irls_truncated_parabola_kernel(_f64(A), _f64(b), int(max_iterations), float(mad_factor),
+                                                     float(min_decrease)), lever_m)
+
+
+@njit(cache=True)
+def _irls_truncated_parabola_kernel(A: np.ndarray, b: np.ndarray, max_iterations: int, mad_factor: float,
+                                    min_decrease: float) -> SolveResult:
+    """Compiled :func:`irls_truncated_parabola`."""
+    At, w = np.ascontiguousarray(A.T), np.empty(0)
+    xi, r, H = _weighted_solve(At, b, w)
     c = mad_factor * median_absolute_deviation(r)
     if not c > 1e-15:
-        return _solution(xi, r, None, H, lever_m)
-    energy, w = truncated_parabola_energy(r, c), None
+        return _solve_result(xi, r, H, w)
+    w_next = np.empty(len(b))
+    energy, inliers = _truncated_parabola_pass(r, c, w_next)
     for _ in range(max_iterations):
-        w_new = truncated_parabola_weights(r, c)
-        if np.count_nonzero(w_new) < MIN_ROWS:
+        if inliers < MIN_ROWS:
             break
-        w = w_new
-        xi, r, H = system.solve(w)
-        last, energy = energy, truncated_parabola_energy(r, c)
+        w, w_next = w_next, (w if len(w) else np.empty(len(b)))  # two buffers: this solve's weights, the next
+        xi, r, H = _weighted_solve(At, b, w)
+        last = energy
+        energy, inliers = _truncated_parabola_pass(r, c, w_next)
         if not energy < min_decrease * last:
             break
-    return _solution(xi, r, w, H, lever_m)
+    return _solve_result(xi, r, H, w)
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})  # reassociation lets the sum vectorise
+def _truncated_parabola_pass(r: np.ndarray, c: float, w: np.ndarray) -> tuple[float, int]:
+    """One pass over the residuals: writes :func:`truncated_parabola_weights` into ``w`` and returns the
+    :func:`truncated_parabola_energy` and the number of non-zero weights."""
+    total, inliers = 0.0, 0
+    for i in range(len(r)):
+        q = (r[i] / c) ** 2
+        w[i] = max(1.0 - q, 0.0)
+        q = min(q, 1.0)
+        total += q * (2.0 - q)
+        if w[i] != 0.0:
+            inliers += 1
+    return 0.25 * c * c * total, inliers
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # Motion filter, degeneracy, SE(2) helpers
 
 
+@njit(cache=True)
 def motion_filter(xi_m: np.ndarray, covariance_eig: tuple[np.ndarray, np.ndarray], xi_prior: np.ndarray,
                   k_l: float, k_e: float) -> np.ndarray:
     """Low-pass filter of a level's solution in the eigenspace of its covariance (3.77 / 3.106).
@@ -790,10 +1230,16 @@ def motion_filter(xi_m: np.ndarray, covariance_eig: tuple[np.ndarray, np.ndarray
         (3,) filtered twist.
     """
     lam, B = covariance_eig
-    gain = k_l + k_e * np.clip(lam, 0.0, None)
-    return B @ ((B.T @ xi_m + gain * (B.T @ xi_prior)) / (1.0 + gain))
+    xi = np.zeros(3)
+    for j in range(3):
+        gain = k_l + k_e * max(lam[j], 0.0)
+        along_m = B[0, j] * xi_m[0] + B[1, j] * xi_m[1] + B[2, j] * xi_m[2]
+        along_prior = B[0, j] * xi_prior[0] + B[1, j] * xi_prior[1] + B[2, j] * xi_prior[2]
+        xi += B[:, j] * ((along_m + gain * along_prior) / (1.0 + gain))
+    return xi
 
 
+@njit(cache=True)
 def unit_information(A: np.ndarray) -> np.ndarray:
     """Geometric information of range-flow constraints: ``sum u u^T`` with ``u = a / |(a_x, a_y)|``.
 
@@ -807,14 +1253,24 @@ def unit_information(A: np.ndarray) -> np.ndarray:
     Returns:
         (3, 3) information matrix in ``(vx, vy, w)``.
     """
-    U = A / np.maximum(np.hypot(A[:, 0], A[:, 1]), 1e-12)[:, None]
-    return U.T @ U
+    info = np.zeros((3, 3))
+    for i in range(A.shape[0]):
+        norm = max(math.sqrt(A[i, 0] ** 2 + A[i, 1] ** 2), 1e-12)
+        u0, u1, u2 = A[i, 0] / norm, A[i, 1] / norm, A[i, 2] / norm
+        info[0, 0] += u0 * u0
+        info[0, 1] += u0 * u1
+        info[0, 2] += u0 * u2
+        info[1, 1] += u1 * u1
+        info[1, 2] += u1 * u2
+        info[2, 2] += u2 * u2
+    info[1, 0], info[2, 0], info[2, 1] = info[0, 1], info[0, 2], info[1, 2]
+    return info
 
 
 def _scaled_eigen(normal: np.ndarray, lever_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eigen-decomposition of ``S N S`` with ``S = diag(1, 1, 1 / lever)``; also returns ``diag(S)``."""
     s = np.array([1.0, 1.0, 1.0 / max(lever_m, 1e-3)])
-    mu, V = np.linalg.eigh(normal * np.outer(s, s))
+    mu, V = eigh3(_f64(normal * np.outer(s, s)))
     return mu, V, s
 
 
@@ -840,17 +1296,19 @@ def weakest_direction(normal: np.ndarray, lever_m: float) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+@njit(cache=True)
 def se2_exp(xi: np.ndarray) -> np.ndarray:
     """(3, 3) ``exp(hat(xi))`` of a (3,) twist (scalar fast path of :func:`simnav.geometry.se2.exp`)."""
-    vx, vy, w = float(xi[0]), float(xi[1]), float(xi[2])
+    vx, vy, w = xi[0], xi[1], xi[2]
     s, c = math.sin(w), math.cos(w)
     if abs(w) < 1e-9:
         a, h = 1.0 - w * w / 6.0, 0.5 * w
     else:
         a, h = s / w, (1.0 - c) / w
-    return np.array([[c, -s, a * vx - h * vy], [s, c, h * vx + a * vy], [0.0, 0.0, 1.0]])
+    return _pose(c, s, a * vx - h * vy, h * vx + a * vy)
 
 
+@njit(cache=True)
 def se2_log(T: np.ndarray) -> np.ndarray:
     """(3,) twist of a (3, 3) pose (scalar fast path of :func:`simnav.geometry.se2.log`)."""
     w = math.atan2(T[1, 0], T[0, 0])
@@ -860,13 +1318,35 @@ def se2_log(T: np.ndarray) -> np.ndarray:
     return np.array([a * tx + half * ty, -half * tx + a * ty, w])
 
 
+@njit(cache=True)
 def se2_inverse(T: np.ndarray) -> np.ndarray:
     """(3, 3) inverse of a (3, 3) pose (fast path of :func:`simnav.geometry.se2.inverse`)."""
     Ti = np.zeros((3, 3))
-    Ti[:2, :2] = T[:2, :2].T
-    Ti[:2, 2] = -T[:2, :2].T @ T[:2, 2]
+    Ti[0, 0], Ti[0, 1], Ti[1, 0], Ti[1, 1] = T[0, 0], T[1, 0], T[0, 1], T[1, 1]
+    Ti[0, 2] = -(T[0, 0] * T[0, 2] + T[1, 0] * T[1, 2])
+    Ti[1, 2] = -(T[0, 1] * T[0, 2] + T[1, 1] * T[1, 2])
     Ti[2, 2] = 1.0
     return Ti
+
+
+@njit(cache=True)
+def _pose(c: float, s: float, x: float, y: float) -> np.ndarray:
+    """(3, 3) pose with rotation ``[[c, -s], [s, c]]`` and translation ``(x, y)``."""
+    T = np.zeros((3, 3))
+    T[0, 0], T[0, 1], T[0, 2] = c, -s, x
+    T[1, 0], T[1, 1], T[1, 2] = s, c, y
+    T[2, 2] = 1.0
+    return T
+
+
+@njit(cache=True)
+def _compose(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(3, 3) product ``A @ B`` of two poses."""
+    C = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    return C
 
 
 def se2_adjoint(T: np.ndarray) -> np.ndarray:
@@ -957,7 +1437,7 @@ def coarse_to_fine(references: Sequence[list[np.ndarray]], ref_geoms: Sequence[L
         The alignment.
     """
     levels = min(len(ref_geoms), len(new.geoms))
-    T, moved = np.eye(3), False
+    T, T_prior, moved = np.eye(3), se2_exp(_f64(xi_prior)), False
     solution, per_level = None, [None] * levels
     for step, lv in enumerate(range(levels - 1, -1, -1)):
         k_l, k_e = params.k_l * math.exp(-step), params.k_e * math.exp(-step)
@@ -971,12 +1451,19 @@ def coarse_to_fine(references: Sequence[list[np.ndarray]], ref_geoms: Sequence[L
                 break
             solution = per_level[lv] = sol
             # 3. Filter against the prior residual motion and compose.
-            xi_prior_res = se2_log(se2_exp(xi_prior) @ se2_inverse(T))
-            xi = motion_filter(sol.xi, sol.covariance_eig, xi_prior_res, k_l, k_e)
-            T, moved = se2_exp(xi) @ T, True
-            if float(np.linalg.norm(sol.xi)) < params.rewarp_tolerance:
+            T, moved = _filtered_update(T, T_prior, sol.xi, *sol.covariance_eig, k_l, k_e), True
+            if math.sqrt(sol.xi @ sol.xi) < params.rewarp_tolerance:
                 break
     return Alignment(T, solution, tuple(per_level))
+
+
+@njit(cache=True)
+def _filtered_update(T: np.ndarray, T_prior: np.ndarray, xi_m: np.ndarray, lam: np.ndarray, V: np.ndarray,
+                     k_l: float, k_e: float) -> np.ndarray:
+    """The running estimate ``T`` after a level solve ``xi_m`` (covariance eigenvalues ``lam``, eigenvectors
+    ``V``): ``exp(motion_filter(xi_m, log(T_prior T^-1))) T`` (3.77 / 3.106)."""
+    xi_prior_res = se2_log(_compose(T_prior, se2_inverse(T)))
+    return _compose(se2_exp(motion_filter(xi_m, (lam, V), xi_prior_res, k_l, k_e)), T)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -995,7 +1482,9 @@ class RangeFlowOdometry:
     config: RangeFlowConfig
 
     def __init__(self) -> None:
+        self._upright_cache: tuple[np.ndarray, np.ndarray, np.ndarray, PlanarScan] | None = None
         self._layout_key: np.ndarray | None = None
+        self._layout_angles: np.ndarray | None = None
         self._layout: BeamLayout | None = None
         self._geoms: tuple[LevelGeometry, ...] = ()
         self._info_cache: tuple[tuple[LevelGeometry, ...] | None, LevelGeometry | None] = (None, None)
@@ -1037,7 +1526,7 @@ class RangeFlowOdometry:
         """
         t0 = time.perf_counter()
         # 1. Upright scan, layout and pyramid.
-        ps = planar_scan(scan)
+        ps = self._upright(scan)
         frame = self._frame(ps)
         dt = ps.stamp_s - self._last_stamp_s if self._last_stamp_s is not None else 0.0
         xi_prior = self._prior(dt)
@@ -1056,7 +1545,7 @@ class RangeFlowOdometry:
         measured = cov_laser is not None
         # 3. Base increment, pose, twist and covariance.
         T_base_laser = ps.T_base_laser
-        T_inc_base = laser_to_base_motion(T_inc, T_base_laser)
+        T_inc_base = T_base_laser @ T_inc @ se2_inverse(T_base_laser)  # laser_to_base_motion, fast path
         self._T_odom_base = self._T_odom_base @ T_inc_base
         if measured:
             Ad = se2_adjoint(T_base_laser)
@@ -1100,6 +1589,22 @@ class RangeFlowOdometry:
         v = weakest_direction(sol.information, sol.lever_m)
         return cov + self.config.lost_variance * np.outer(v, v), True
 
+    def _upright(self, scan: LaserScan) -> PlanarScan:
+        """:func:`simnav.odometry.base.planar_scan` of ``scan``; the beam order, upright angles and mount it
+        derives from the scanner's angles and mount are computed once per scanner."""
+        cached = self._upright_cache
+        if cached is None or not (np.array_equal(scan.angles_rad, cached[0])
+                                  and np.array_equal(scan.T_base_sensor, cached[1])):
+            # planar_scan of beam numbers 1..N tells where each upright beam comes from.
+            numbers = np.arange(1.0, len(scan.angles_rad) + 1.0)
+            probe = planar_scan(replace(scan, ranges_m=numbers, min_range_m=0.0, max_range_m=np.inf))
+            order = probe.ranges_m.astype(np.int64) - 1
+            cached = self._upright_cache = (np.array(scan.angles_rad, copy=True),
+                                            np.array(scan.T_base_sensor, copy=True), order, probe)
+        _, _, order, probe = cached
+        ranges = _upright_ranges(_f64(scan.ranges_m), order, float(scan.min_range_m), float(scan.max_range_m))
+        return PlanarScan(scan.stamp_s, ranges, probe.angles_rad, probe.T_base_laser, scan.max_range_m)
+
     def _frame(self, ps: PlanarScan) -> ScanFrame | None:
         """Layout, geometry and pyramid of a scan; None when it has too few valid beams."""
         layout, geoms = self._geometry(ps.angles_rad)
@@ -1113,12 +1618,14 @@ class RangeFlowOdometry:
 
     def _geometry(self, angles_rad: np.ndarray) -> tuple[BeamLayout, tuple[LevelGeometry, ...]]:
         """Cached beam layout and pyramid geometry for an angle vector."""
-        if self._layout_key is None or not np.array_equal(angles_rad, self._layout_key):
+        if self._layout_key is None or not (angles_rad is self._layout_angles
+                                            or np.array_equal(angles_rad, self._layout_key)):
             layout = beam_layout(angles_rad)
             geoms = ()
             if len(layout.angles_rad) >= max(self.config.min_level_beams, MIN_ROWS):
                 geoms = pyramid_geometry(layout, self._levels(len(layout.angles_rad)), self.config.min_level_beams)
             self._layout_key, self._layout, self._geoms = np.array(angles_rad, copy=True), layout, geoms
+        self._layout_angles = angles_rad  # the cached upright angles come back as the same array
         return self._layout, self._geoms
 
     def _prior(self, dt: float) -> np.ndarray:
@@ -1126,6 +1633,17 @@ class RangeFlowOdometry:
         if self._twist_laser is not None and dt > 0:
             return self._twist_laser * dt
         return self._xi_last.copy()
+
+
+@njit(cache=True)
+def _upright_ranges(ranges: np.ndarray, order: np.ndarray, min_range_m: float, max_range_m: float) -> np.ndarray:
+    """(N,) ``ranges[order]`` with NaN, inf and out-of-range beams set to 0, as :func:`planar_scan` returns them."""
+    out = np.empty(len(order))
+    for k in range(len(order)):
+        r = ranges[order[k]]
+        ok = np.isfinite(r) and r > 0 and r >= min_range_m and r <= max_range_m
+        out[k] = r if ok else 0.0
+    return out
 
 
 def _finite(a: np.ndarray) -> np.ndarray:

@@ -18,17 +18,16 @@ from simnav.odometry.rangeflow import (
     Alignment,
     CoarseToFine,
     LevelGeometry,
+    Preweights,
     RangeFlowConfig,
     RangeFlowOdometry,
     ScanFrame,
     Solution,
     coarse_to_fine,
-    flow_terms,
     irls_cauchy,
     make_config,
-    preweights_rf2o,
     require,
-    unit_information,
+    weighted_constraints,
 )
 
 
@@ -79,6 +78,7 @@ class RF2O(RangeFlowOdometry):
     def __init__(self, **config) -> None:
         self.config: RF2OConfig = make_config(RF2OConfig, config, "RF2O")
         self._ctf = CoarseToFine(self.config.filter_kl, self.config.filter_ke, max_rewarps=1)
+        self._preweights = Preweights.rf2o(self.config.preweight_eps_m2, self.config.preweight_kd)
         super().__init__()
 
     def _levels(self, beams: int) -> int:
@@ -91,11 +91,9 @@ class RF2O(RangeFlowOdometry):
                      step: int) -> Solution | None:
         """Pre-weighted constraints (3.64, 3.71–3.72) of one level, solved with Cauchy IRLS (3.66–3.68)."""
         cfg = self.config
-        terms = flow_terms(refs[0], warped, geom, symmetric=cfg.inter_geometry)
-        if len(terms.rows) < MIN_ROWS:
+        system = weighted_constraints(refs[0], warped, geom, cfg.inter_geometry, self._preweights,
+                                      information=geom is self._info_geom)
+        if system.rows < MIN_ROWS:
             return None
-        w = preweights_rf2o(terms, geom, cfg.preweight_eps_m2, cfg.preweight_kd)
-        A = terms.A * w[:, None]
-        b = -w * terms.rt_m[terms.rows]
-        sol = irls_cauchy(A, b, cfg.irls_iterations, cfg.cauchy_k_ratio, terms.mean_range_m)
-        return replace(sol, information=unit_information(terms.A)) if geom is self._info_geom else sol
+        sol = irls_cauchy(system.A, system.b, cfg.irls_iterations, cfg.cauchy_k_ratio, system.mean_range_m)
+        return sol if system.information is None else replace(sol, information=system.information)

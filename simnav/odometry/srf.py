@@ -19,24 +19,23 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from simnav.geometry import se2
 from simnav.odometry.rangeflow import (
     MIN_ROWS,
     Alignment,
     CoarseToFine,
     LevelGeometry,
+    Preweights,
     RangeFlowConfig,
     RangeFlowOdometry,
     ScanFrame,
     Solution,
     coarse_to_fine,
-    flow_terms,
     irls_truncated_parabola,
     make_config,
-    preweights_srf,
     require,
-    unit_information,
+    se2_inverse,
     warp_scan,
+    weighted_constraints,
 )
 
 MODES = ("CA", "KA", "MA")
@@ -139,6 +138,7 @@ class SRFOdometry(RangeFlowOdometry):
         self.config: SRFConfig = make_config(SRFConfig, config, "SRF")
         cfg = self.config
         self._ctf = CoarseToFine(cfg.filter_kl, cfg.filter_ke, cfg.max_rewarps, cfg.rewarp_tolerance)
+        self._preweights = Preweights.srf(cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
         super().__init__()
 
     def reset(self) -> None:
@@ -174,7 +174,7 @@ class SRFOdometry(RangeFlowOdometry):
         key = self._key
         if len(key.geoms) < len(ref.geoms):
             return None
-        T_prev_key = se2.inverse(self._T_key_prev)
+        T_prev_key = se2_inverse(self._T_key_prev)
         warped = [warp_scan(key.pyramid[lv], key.geoms[lv], T_prev_key, g, keep="farthest")
                   for lv, g in enumerate(ref.geoms)]
         need = max(self.config.min_valid_points, math.ceil(self.config.min_valid_fraction * ref.beams))
@@ -185,24 +185,19 @@ class SRFOdometry(RangeFlowOdometry):
         """Symmetric constraints (3.93) of every reference, pre-weighted (3.96–3.97), stacked (3.99) and solved
         with truncated-parabola IRLS (3.94, 3.95, 3.100)."""
         cfg = self.config
-        A_w, b_w, A_raw, levers = [], [], [], []
-        for r_ref in refs:
-            terms = flow_terms(r_ref, warped, geom, symmetric=True)
-            if len(terms.rows) < MIN_ROWS:
-                continue
-            w = preweights_srf(terms, geom, cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
-            A_w.append(terms.A * w[:, None])
-            b_w.append(-w * terms.rt_m[terms.rows])
-            A_raw.append(terms.A)
-            levers.append(terms.mean_range_m)
-        if not A_w:
+        info = geom is self._info_geom
+        systems = [weighted_constraints(r_ref, warped, geom, True, self._preweights, info) for r_ref in refs]
+        systems = [s for s in systems if s.rows >= MIN_ROWS]
+        if not systems:
             return None
-        A, b = (A_w[0], b_w[0]) if len(A_w) == 1 else (np.vstack(A_w), np.concatenate(b_w))
-        sol = irls_truncated_parabola(A, b, cfg.irls_max_iterations, cfg.mad_factor, cfg.irls_min_decrease,
-                                      float(np.mean(levers)))
-        if geom is not self._info_geom:
-            return sol
-        return replace(sol, information=unit_information(A_raw[0] if len(A_raw) == 1 else np.vstack(A_raw)))
+        if len(systems) == 1:
+            A, b = systems[0].A, systems[0].b
+        else:
+            A, b = np.concatenate([s.A for s in systems]), np.concatenate([s.b for s in systems])
+        lever = sum(s.mean_range_m for s in systems) / len(systems)
+        sol = irls_truncated_parabola(A, b, cfg.irls_max_iterations, cfg.mad_factor, cfg.irls_min_decrease, lever)
+        # The information of stacked constraints is the sum of theirs.
+        return replace(sol, information=sum(s.information for s in systems)) if info else sol
 
     def _after_scan(self, new: ScanFrame | None, T_prev_new: np.ndarray, measured: bool) -> dict:
         """Keyscan bookkeeping (§3.G.7): move the previous-scan pose and replace the keyscan when the policy,
