@@ -12,6 +12,7 @@ newest scan becomes the keyscan.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -19,6 +20,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from simnav.odometry.base import OdometryEstimate
+from simnav.odometry.keyscan import LearnedKeyscanPolicy, available_presets
 from simnav.odometry.rangeflow import (
     MIN_ROWS,
     Alignment,
@@ -37,6 +40,10 @@ from simnav.odometry.rangeflow import (
     warp_scan,
     weighted_constraints,
 )
+from simnav.sensors.presets import LIDAR2D_PRESETS
+from simnav.sensors.readings import LaserScan
+
+log = logging.getLogger(__name__)
 
 MODES = ("CA", "KA", "MA")
 """Consecutive alignment, keyscan alignment, multi-scan alignment."""
@@ -60,9 +67,8 @@ class KeyscanPolicy(Protocol):
 class ThresholdKeyscanPolicy:
     """Keyscan criterion with fixed translation and rotation limits.
 
-    This stands in until the learned error model of §3.G.7 is fitted for our scanners: there the working region
-    is the set of (translation, rotation) whose simulated mean error stays below 10 mm / 0.1 deg, bounded by a
-    fitted polynomial. Here the region is a plain box, chosen conservatively.
+    A simple alternative to the default, the working regions learned in simulation (§3.G.7,
+    :class:`simnav.odometry.keyscan.LearnedKeyscanPolicy`); here the region is a plain box.
 
     Attributes:
         max_translation_m: new keyscan beyond this distance from the current one, m.
@@ -111,7 +117,7 @@ class SRFConfig(RangeFlowConfig):
     sensor_sigma_m: float = 0.02
     preweight_kd: float = 0.01
     preweight_k2d: float = 2e-4
-    keyscan_policy: KeyscanPolicy = ThresholdKeyscanPolicy()
+    keyscan_policy: KeyscanPolicy | str = "auto"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -122,8 +128,11 @@ class SRFConfig(RangeFlowConfig):
         require(self.mad_factor > 0, "mad_factor must be > 0")
         require(self.filter_kl >= 0 and self.filter_ke >= 0, "filter_kl and filter_ke must be >= 0")
         require(self.sensor_sigma_m > 0, "sensor_sigma_m must be > 0")
-        require(isinstance(self.keyscan_policy, KeyscanPolicy),
-                "keyscan_policy must have a needs_new_keyscan(translation_m, rotation_rad) method")
+        require(isinstance(self.keyscan_policy, KeyscanPolicy) or self.keyscan_policy == "auto"
+                or self.keyscan_policy in available_presets(),
+                "keyscan_policy must be 'auto', a lidar preset with a learned model "
+                f"({', '.join(available_presets())}) or an object with a "
+                "needs_new_keyscan(translation_m, rotation_rad) method")
 
 
 class SRFOdometry(RangeFlowOdometry):
@@ -144,6 +153,7 @@ class SRFOdometry(RangeFlowOdometry):
     def reset(self) -> None:
         """Forget all history (scans and keyscan); the next scan starts a new odom frame."""
         super().reset()
+        self._policy: KeyscanPolicy | None = None
         self._key: ScanFrame | None = None
         self._T_key_prev = np.eye(3)  # pose of the previous scan in the keyscan frame
         self._key_is_prev = True
@@ -211,13 +221,42 @@ class SRFOdometry(RangeFlowOdometry):
             T_key_new = self._T_key_prev @ T_prev_new
             translation = math.hypot(T_key_new[0, 2], T_key_new[1, 2])
             rotation = math.atan2(T_key_new[1, 0], T_key_new[0, 0])
-            if self.config.keyscan_policy.needs_new_keyscan(translation, rotation):
+            if self._policy.needs_new_keyscan(translation, rotation):
                 updated = self._set_key(new)
             else:
                 self._T_key_prev, self._key_is_prev, updated = T_key_new, False, False
         return {"mode": self.config.mode, "new_keyscan": updated}
 
+    def process(self, scan: LaserScan) -> OdometryEstimate:
+        """Estimate the motion since the previous scan (see :class:`simnav.odometry.base.ScanOdometry`)."""
+        if self._policy is None:
+            self._policy = resolve_keyscan_policy(self.config.keyscan_policy, scan)
+        return super().process(scan)
+
     def _set_key(self, frame: ScanFrame | None) -> bool:
         """Makes ``frame`` the keyscan (None clears it); returns whether a keyscan was set."""
         self._key, self._T_key_prev, self._key_is_prev = frame, np.eye(3), True
         return frame is not None
+
+
+def resolve_keyscan_policy(policy: KeyscanPolicy | str, scan: LaserScan) -> KeyscanPolicy:
+    """The policy object for a setting: itself, the learned model of a named preset, or for ``"auto"`` the
+    model of the preset whose beam count and field of view are closest to ``scan``'s."""
+    if not isinstance(policy, str):
+        return policy
+    name = policy if policy != "auto" else closest_preset(scan)
+    log.info("SRF keyscan policy: learned working region of '%s'", name)
+    return LearnedKeyscanPolicy.from_preset(name)
+
+
+def closest_preset(scan: LaserScan) -> str:
+    """The 2D lidar preset with a learned keyscan model that best matches the scan's beams and field of view."""
+    beams = len(scan.angles_rad)
+    span = abs(float(scan.angles_rad[-1] - scan.angles_rad[0]))
+    fov = span * beams / (beams - 1) if beams > 1 else span
+
+    def mismatch(name: str) -> float:
+        p = LIDAR2D_PRESETS[name]
+        return abs(beams - p.beams) / p.beams + abs(fov - math.radians(p.fov_deg)) / math.radians(p.fov_deg)
+
+    return min(available_presets(), key=mismatch)

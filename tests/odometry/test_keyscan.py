@@ -186,3 +186,21 @@ def test_srf_multi_scan_with_the_learned_policy_creates_keyscans(rangesim):
     T_true = se2.inverse(poses[0]) @ poses[-1]
     E = se2.inverse(T_true) @ out[-1].T_odom_base
     assert math.hypot(E[0, 2], E[1, 2]) < 0.05 and abs(math.atan2(E[1, 0], E[0, 0])) < math.radians(1.0)
+
+
+def test_srf_picks_the_learned_model_of_the_matching_preset():
+    from simnav.odometry.srf import closest_preset
+    from simnav.sensors.readings import LaserScan
+
+    def scan(beams, fov_deg):
+        angles = np.linspace(-np.radians(fov_deg) / 2, np.radians(fov_deg) / 2, beams)
+        return LaserScan("l", 0.0, np.ones(beams, np.float32), angles, 30.0, 0.1, np.eye(4))
+
+    assert closest_preset(scan(1080, 270)) == "hokuyo_utm30lx"
+    assert closest_preset(scan(682, 240)) == "hokuyo_urg04lx"
+    assert closest_preset(scan(361, 180)) == "sick_lms200"
+    odometry = SRFOdometry(mode="MA")
+    odometry.process(scan(1080, 270))
+    assert isinstance(odometry._policy, LearnedKeyscanPolicy)
+    with pytest.raises(ConfigError, match="keyscan_policy"):
+        SRFOdometry(keyscan_policy="no_such_scanner")
