@@ -74,7 +74,7 @@ class Sequence:
 def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     """Record (or load from the cache) ``seconds`` of scans in a benchmark world."""
     world_name, wanderers = WORLDS[name]
-    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}.npz"
+    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v2.npz"
     if path.is_file():
         d = np.load(path)
         return Sequence(name, d["stamps_s"], d["ranges_m"], d["gt_xy_yaw"], d["angles_rad"], d["T_base_sensor"],
@@ -87,7 +87,8 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
                                    robot.drive.max_v_m_s, robot.drive.max_w_rad_s)
         scan = sim.latest("laser")
         for _ in range(math.ceil(seconds / sim.config.control_dt_s)):
-            for reading in sim.step(*follower.command(*sim.pose_xy_yaw)):
+            v, w = follower.command(*sim.pose_xy_yaw)
+            for reading in sim.step(v if clear_ahead(scan) else 0.0, w):
                 T = sim.T_world_base_at(reading.stamp_s)
                 stamps.append(reading.stamp_s)
                 ranges.append(reading.ranges_m)
@@ -99,6 +100,15 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     np.savez(path, stamps_s=seq.stamps_s, ranges_m=seq.ranges_m, gt_xy_yaw=seq.gt_xy_yaw, angles_rad=seq.angles_rad,
              T_base_sensor=seq.T_base_sensor, max_range_m=seq.max_range_m, min_range_m=seq.min_range_m)
     return seq
+
+
+def clear_ahead(scan: LaserScan | None, distance_m: float = 0.8, half_angle_rad: float = math.radians(35)) -> bool:
+    """Whether nothing is within ``distance_m`` in front of the scanner: the roadmap follower has no obstacle
+    avoidance, so it waits for wandering robots instead of pushing into them."""
+    if scan is None:
+        return True
+    front = (np.abs(scan.angles_rad) < half_angle_rad) & (scan.ranges_m > 0)
+    return not np.any(scan.ranges_m[front] < distance_m)
 
 
 # ------------------------------------------------------------------------------------------------ methods
