@@ -74,7 +74,7 @@ class Sequence:
 def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     """Record (or load from the cache) ``seconds`` of scans in a benchmark world."""
     world_name, wanderers = WORLDS[name]
-    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v2.npz"
+    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v3.npz"
     if path.is_file():
         d = np.load(path)
         return Sequence(name, d["stamps_s"], d["ranges_m"], d["gt_xy_yaw"], d["angles_rad"], d["T_base_sensor"],
@@ -88,7 +88,7 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
         scan = sim.latest("laser")
         for _ in range(math.ceil(seconds / sim.config.control_dt_s)):
             v, w = follower.command(*sim.pose_xy_yaw)
-            for reading in sim.step(v if clear_ahead(scan) else 0.0, w):
+            for reading in sim.step(v if clear_ahead(sim) else 0.0, w):
                 T = sim.T_world_base_at(reading.stamp_s)
                 stamps.append(reading.stamp_s)
                 ranges.append(reading.ranges_m)
@@ -102,13 +102,15 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     return seq
 
 
-def clear_ahead(scan: LaserScan | None, distance_m: float = 0.8, half_angle_rad: float = math.radians(35)) -> bool:
-    """Whether nothing is within ``distance_m`` in front of the scanner: the roadmap follower has no obstacle
-    avoidance, so it waits for wandering robots instead of pushing into them."""
-    if scan is None:
-        return True
-    front = (np.abs(scan.angles_rad) < half_angle_rad) & (scan.ranges_m > 0)
-    return not np.any(scan.ranges_m[front] < distance_m)
+def clear_ahead(sim: Simulator, distance_m: float = 1.0, half_angle_rad: float = math.radians(40)) -> bool:
+    """Whether no wandering robot is within ``distance_m`` ahead of the base: the roadmap follower has no obstacle
+    avoidance, so it waits for them instead of pushing into them."""
+    x, y, yaw = sim.pose_xy_yaw
+    offsets = sim.wanderers.positions_xy - (x, y)
+    distance = np.hypot(offsets[:, 0], offsets[:, 1])
+    bearing = np.arctan2(offsets[:, 1], offsets[:, 0]) - yaw
+    ahead = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing))) < half_angle_rad
+    return not np.any(ahead & (distance < distance_m))
 
 
 # ------------------------------------------------------------------------------------------------ methods

@@ -103,6 +103,11 @@ class SRFConfig(RangeFlowConfig):
         preweight_kd: ``K_D`` (3.96).
         preweight_k2d: ``K_2D`` (3.96).
         keyscan_policy: when to take a new keyscan (modes KA and MA).
+        symmetric: the symmetric range flow constraint (3.83 / 3.91); False = the standard one (3.80), geometry
+            of the reference scan (the NSRF variant of Table 3.14).
+        preweighting: pre-weight the constraints (3.96 / 3.97); False = unit weights (Table 3.12).
+        robust: minimise the smooth truncated parabola of the residuals (3.94); False = plain least squares
+            (Table 3.12).
     """
 
     mode: str = "CA"
@@ -118,6 +123,9 @@ class SRFConfig(RangeFlowConfig):
     preweight_kd: float = 0.01
     preweight_k2d: float = 2e-4
     keyscan_policy: KeyscanPolicy | str = "auto"
+    symmetric: bool = True
+    preweighting: bool = True
+    robust: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -147,7 +155,8 @@ class SRFOdometry(RangeFlowOdometry):
         self.config: SRFConfig = make_config(SRFConfig, config, "SRF")
         cfg = self.config
         self._ctf = CoarseToFine(cfg.filter_kl, cfg.filter_ke, cfg.max_rewarps, cfg.rewarp_tolerance)
-        self._preweights = Preweights.srf(cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
+        self._preweights = (Preweights.srf(cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
+                            if cfg.preweighting else Preweights.srf(1.0, 0.0, 0.0))  # 1/sqrt(1 + 0) = unit weights
         super().__init__()
 
     def reset(self) -> None:
@@ -196,7 +205,7 @@ class SRFOdometry(RangeFlowOdometry):
         with truncated-parabola IRLS (3.94, 3.95, 3.100)."""
         cfg = self.config
         info = geom is self._info_geom
-        systems = [weighted_constraints(r_ref, warped, geom, True, self._preweights, info) for r_ref in refs]
+        systems = [weighted_constraints(r_ref, warped, geom, cfg.symmetric, self._preweights, info) for r_ref in refs]
         systems = [s for s in systems if s.rows >= MIN_ROWS]
         if not systems:
             return None
@@ -205,7 +214,8 @@ class SRFOdometry(RangeFlowOdometry):
         else:
             A, b = np.concatenate([s.A for s in systems]), np.concatenate([s.b for s in systems])
         lever = sum(s.mean_range_m for s in systems) / len(systems)
-        sol = irls_truncated_parabola(A, b, cfg.irls_max_iterations, cfg.mad_factor, cfg.irls_min_decrease, lever)
+        iterations = cfg.irls_max_iterations if cfg.robust else 0  # no reweighting: least squares
+        sol = irls_truncated_parabola(A, b, iterations, cfg.mad_factor, cfg.irls_min_decrease, lever)
         # The information of stacked constraints is the sum of theirs.
         return replace(sol, information=sum(s.information for s in systems)) if info else sol
 
