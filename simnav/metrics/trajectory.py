@@ -489,16 +489,3 @@ def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     T[:3, 3] = np.asarray(t).reshape(3)
     return T
 
-
-__all__ = [
-    "ALIGNMENTS",
-    "DEFAULT_SEGMENTS_M",
-    "ATEResult",
-    "DriftResult",
-    "RPEResult",
-    "ate",
-    "drift_per_segment",
-    "planar_trajectory",
-    "plot_trajectories",
-    "rpe_per_second",
-]

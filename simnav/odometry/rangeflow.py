@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
@@ -1470,7 +1471,7 @@ def _filtered_update(T: np.ndarray, T_prior: np.ndarray, xi_m: np.ndarray, lam: 
 # Odometry bookkeeping shared by RF2O and SRF
 
 
-class RangeFlowOdometry:
+class RangeFlowOdometry(ABC):
     """Scan-to-scan bookkeeping shared by the range-flow odometries.
 
     Subclasses set ``config``, implement :meth:`_levels` and :meth:`_align`, and may override
@@ -1501,13 +1502,13 @@ class RangeFlowOdometry:
 
     # -- hooks ----------------------------------------------------------------------------------------------
 
+    @abstractmethod
     def _levels(self, beams: int) -> int:
         """Number of pyramid levels for a scan with ``beams`` beams."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _align(self, ref: ScanFrame, new: ScanFrame, xi_prior: np.ndarray) -> Alignment:
         """Motion from ``ref`` to ``new`` (both valid)."""
-        raise NotImplementedError
 
     def _after_scan(self, new: ScanFrame | None, T_prev_new: np.ndarray, measured: bool) -> dict:
         """Called after each scan with the (valid) frame or None and the laser increment; returns extras."""
