@@ -40,6 +40,7 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
+from simnav.geometry.raycast2d import first_hits  # noqa: E402
 from simnav.geometry import se2  # noqa: E402
 from simnav.sensors.readings import LaserScan  # noqa: E402
 
@@ -69,20 +70,6 @@ def l_room() -> np.ndarray:
                       _box(1.2, 4.6, 0.8, 0.3, -35), _box(3.9, 4.8, 0.25, 0.25, 10)])
 
 
-def cast(walls: np.ndarray, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """(N,) distance along each of the (N, 2) unit ``directions`` from the (2,) ``origin`` to the first wall, m
-    (inf where nothing is hit)."""
-    p, e = walls[:, :2], walls[:, 2:] - walls[:, :2]
-    d = directions[:, None, :]
-    w = p[None] - origin[None, None]
-    den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
-        s = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
-    hit = (np.abs(den) > 1e-12) & (t > 1e-9) & (s >= 0) & (s <= 1)
-    return np.where(hit, t, np.inf).min(axis=1)
-
-
 def loop_poses(n: int, speed_mps: float = 0.4, radius_m: float = 0.8) -> list[np.ndarray]:
     """n (3, 3) scanner poses ``SCAN_DT_S`` apart on a wobbling circle in the lower arm of :func:`l_room`."""
     poses, T = [], se2.from_xy_yaw(3.6, 0.8, 0.0)
@@ -101,7 +88,8 @@ def make_scans(n: int, seed: int = 0) -> tuple[list[LaserScan], list[np.ndarray]
     poses, scans = loop_poses(n), []
     for i, T in enumerate(poses):
         a = angles + math.atan2(T[1, 0], T[0, 0])
-        r = cast(walls, T[:2, 2], np.column_stack([np.cos(a), np.sin(a)])) + rng.normal(scale=NOISE_M, size=BEAMS)
+        directions = np.column_stack([np.cos(a), np.sin(a)])
+        r = first_hits(walls, T[:2, 2], directions) + rng.normal(scale=NOISE_M, size=BEAMS)
         r = np.where((r >= MIN_RANGE_M) & (r <= MAX_RANGE_M), r, 0.0)
         scans.append(LaserScan("laser", i * SCAN_DT_S, r.astype(np.float32), angles.copy(), MAX_RANGE_M,
                                MIN_RANGE_M, np.eye(4)))

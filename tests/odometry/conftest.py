@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from simnav.geometry import se2, se3
+from simnav.geometry.raycast2d import first_hits
 from simnav.sensors.readings import LaserScan
 
 
@@ -43,28 +44,6 @@ def corridor(length_m: float = 400.0, width_m: float = 2.0) -> np.ndarray:
     """Two parallel featureless walls along x, from ``-length/2`` to ``+length/2``, ``width`` apart around y = 0."""
     h, w = length_m / 2, width_m / 2
     return np.array([[-h, -w, h, -w], [-h, w, h, w]], dtype=np.float64)
-
-
-def cast(segments: np.ndarray, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """Distance along each ray to the first wall.
-
-    Args:
-        segments: (M, 4) walls.
-        origin: (2,) ray origin, m.
-        directions: (N, 2) unit directions.
-
-    Returns:
-        (N,) distances, m (inf where nothing is hit).
-    """
-    p, e = segments[:, :2], segments[:, 2:] - segments[:, :2]
-    d = directions[:, None, :]
-    w = p[None, :, :] - origin[None, None, :]
-    den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
-        s = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
-    hit = (np.abs(den) > 1e-12) & (t > 1e-9) & (s >= 0) & (s <= 1)
-    return np.where(hit, t, np.inf).min(axis=1)
 
 
 def uniform_angles(n: int, fov_deg: float) -> np.ndarray:
@@ -102,7 +81,7 @@ class ScanSimulator:
         dirs = dirs_base @ T_world_base[:2, :2].T
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         origin = se2.transform_points(T_world_base, self.T_base_sensor[None, :2, 3])[0]
-        r = cast(self.world, origin, dirs)
+        r = first_hits(self.world, origin, dirs)
         if self.noise_m > 0:
             r = r + self.rng.normal(scale=self.noise_m, size=r.shape)
         r = np.where((r <= self.max_range_m) & (r >= self.min_range_m), r, 0.0)
@@ -134,6 +113,6 @@ def mount(roll_deg: float = 0.0, yaw_deg: float = 0.0, x_m: float = 0.0, y_m: fl
 @pytest.fixture
 def rangesim() -> SimpleNamespace:
     """The helpers of this module: worlds, simulator, trajectories and mounts."""
-    return SimpleNamespace(polygon=polygon, box=box, l_room=l_room, corridor=corridor, cast=cast,
+    return SimpleNamespace(polygon=polygon, box=box, l_room=l_room, corridor=corridor, cast=first_hits,
                            uniform_angles=uniform_angles, ScanSimulator=ScanSimulator, trajectory=trajectory,
                            mount=mount)
