@@ -6,7 +6,15 @@ from __future__ import annotations
 import importlib
 
 from simnav.errors import UnknownNameError
-from simnav.odometry.base import OdometryEstimate, PlanarScan, ScanOdometry, laser_to_base_motion, planar_scan
+from simnav.odometry.base import (
+    CameraOdometryEstimate,
+    FrameOdometry,
+    OdometryEstimate,
+    PlanarScan,
+    ScanOdometry,
+    laser_to_base_motion,
+    planar_scan,
+)
 from simnav.odometry.wheels import WheelOdometry
 
 SCAN_ODOMETRIES = {"rf2o": "simnav.odometry.rf2o:RF2O", "srf": "simnav.odometry.srf:SRFOdometry"}
@@ -20,5 +28,6 @@ def make_scan_odometry(name: str, **config) -> ScanOdometry:
     return getattr(importlib.import_module(module), cls)(**config)
 
 
-__all__ = ["OdometryEstimate", "PlanarScan", "ScanOdometry", "WheelOdometry", "laser_to_base_motion",
+__all__ = ["CameraOdometryEstimate", "FrameOdometry", "OdometryEstimate",
+           "PlanarScan", "ScanOdometry", "WheelOdometry", "laser_to_base_motion",
            "make_scan_odometry", "planar_scan"]

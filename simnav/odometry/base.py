@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from simnav.geometry import se2
-from simnav.sensors.readings import LaserScan
+from simnav.sensors.readings import LaserScan, RGBDFrame
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,49 @@ class ScanOdometry(Protocol):
 
     def reset(self) -> None:
         """Forget all history; the next scan starts a new odom frame."""
+        ...
+
+
+@dataclass(frozen=True)
+class CameraOdometryEstimate:
+    """The result for one depth / RGB-D frame.
+
+    Attributes:
+        stamp_s: the frame's time stamp, s.
+        T_odom_camera: (4, 4) SE(3) pose of the camera optical frame in the odom frame (odom = optical frame of
+            the first frame).
+        T_odom_base: (4, 4) SE(3) pose of the base, through the camera mount: the odom frame of the base is the
+            base at the first frame, so ``T_odom_base = T_base_camera @ T_odom_camera @ inv(T_base_camera)``.
+        twist_camera: (6,) velocity of the camera in its own optical frame over the last interval, (v, w):
+            m/s, rad/s, translational part first.
+        covariance: (6, 6) covariance of the last increment's twist (v, w) times the interval, in the optical frame.
+        degenerate: True when a motion direction was unobservable (e.g. a flat wall filling the view).
+        valid_points: number of valid pixels used at the finest level.
+        runtime_s: wall time spent on this frame, s.
+        extra: method-specific outputs (scene flow, labels, ...), documented by each method.
+    """
+
+    stamp_s: float
+    T_odom_camera: np.ndarray
+    T_odom_base: np.ndarray
+    twist_camera: np.ndarray
+    covariance: np.ndarray
+    degenerate: bool = False
+    valid_points: int = 0
+    runtime_s: float = 0.0
+    extra: dict = field(default_factory=dict, repr=False)
+
+
+class FrameOdometry(Protocol):
+    """A depth or RGB-D odometry: feed frames in time order, get one estimate per frame."""
+
+    def process(self, frame: RGBDFrame) -> CameraOdometryEstimate:
+        """Estimate the motion since the previous frame; never raises on bad data (too few valid pixels keeps
+        the constant-velocity prior and inflates the covariance)."""
+        ...
+
+    def reset(self) -> None:
+        """Forget all history; the next frame starts a new odom frame."""
         ...
 
 
