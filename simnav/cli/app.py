@@ -178,4 +178,5 @@ def main() -> None:
 
 
 # Commands defined in other modules register themselves on `app` when imported.
+from simnav.cli import mission as _mission_commands  # noqa: E402, F401
 from simnav.cli import odometry as _odometry_commands  # noqa: E402, F401

@@ -112,8 +112,8 @@ class SRFConfig(RangeFlowConfig):
 
     mode: str = "CA"
     levels: int | None = None
-    max_rewarps: int = 3
-    rewarp_tolerance: float = 0.05
+    max_rewarps: int = 8
+    rewarp_tolerance: float = 0.01
     irls_max_iterations: int = 10
     irls_min_decrease: float = 0.995
     mad_factor: float = 4.0

@@ -1,0 +1,418 @@
+"""``simnav mission``: a robot navigates to random roadmap targets among people, headless, and reports how it went.
+
+As in §6.C.7, targets are drawn at random from the world's roadmap; the route to each is the roadmap's shortest
+path, handed to the 3D-PTG navigator as waypoints that it follows without stopping. The navigator sees every
+range sensor of the robot (lidars, 3D lidars, depth cameras) and uses the pose of the chosen source (ground truth,
+or an odometry anchored at the true start). A robot that has not come closer to its target for 30 s is
+*stuck*: that counts as an intervention and the robot is moved to the next roadmap node of its route, as a person
+would. Contacts with walls, furniture, doors and people are the minor incidents of Table 6.1.
+
+Output folder (``--out``): ``report.json`` (schema in the README), ``trajectory_gt.txt`` and
+``trajectory_est.txt`` (TUM), ``mission.png`` (top view: map, path, targets, incidents) and the settings.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+import simnav
+from simnav.config import FrozenModel, dump_yaml
+from simnav.geometry import se2
+from simnav.io import TumWriter
+from simnav.mission.pose import PoseSource
+from simnav.navigation.bands import planar_bands, robot_bands
+from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
+from simnav.navigation.sensing import SensedObstacles
+from simnav.robot.spec import RobotSpec
+from simnav.sim import SimConfig, Simulator
+from simnav.sim.robot import SimRobot
+from simnav.world.footprint import obstacle_union
+from simnav.world.schema import WorldSpec
+
+INCIDENT_MERGE_S = 1.0
+"""Contacts with the same body closer in time than this are one incident, s."""
+
+CLEARANCE_PERIOD_S = 0.2
+"""The robot's clearance to static obstacles is measured at this period, s."""
+
+
+class MissionSettings(FrozenModel):
+    """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator."""
+
+    targets: Annotated[int, Field(ge=1, le=100000)] | None = 3
+    duration_s: Annotated[float, Field(gt=0, le=10 * 86400)] | None = None
+    seed: int = 1
+    pose_source: str = "gt"
+    nav: Literal["3d", "2d"] = "3d"
+    stuck_timeout_s: Annotated[float, Field(gt=0)] = 30.0
+    max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
+    memory: bool = True
+    sim: SimConfig = SimConfig()
+
+    @model_validator(mode="after")
+    def _budget(self) -> MissionSettings:
+        if self.targets is None and self.duration_s is None:
+            raise ValueError("give targets or duration_s")
+        return self
+
+
+@dataclass
+class TargetRow:
+    """One target of the mission."""
+
+    index: int
+    node: int
+    x_m: float
+    y_m: float
+    start_s: float = 0.0
+    reached: bool = False
+    time_s: float = 0.0
+    distance_m: float = 0.0
+    shortest_m: float = 0.0
+    path_length_ratio: float = float("nan")
+    interventions: int = 0
+    incidents: int = 0
+
+
+@dataclass
+class MissionReport:
+    """Everything ``report.json`` holds (see the README for the schema)."""
+
+    simnav_version: str
+    world: str
+    robot: str
+    seed: int
+    nav: str
+    pose_source: str
+    people: int
+    targets_requested: int = 0
+    targets_reached: int = 0
+    distance_m: float = 0.0
+    duration_s: float = 0.0
+    avg_speed_m_s: float = 0.0
+    max_speed_m_s: float = 0.0
+    minor_incidents: dict = field(default_factory=lambda: {"static": 0, "door": 0, "people": 0, "robots": 0,
+                                                           "total": 0})
+    interventions: int = 0
+    min_clearance_m: float = float("inf")
+    path_length_ratio: float = float("nan")
+    navigator_step_ms: dict = field(default_factory=lambda: {"median": 0.0, "p95": 0.0})
+    real_time_factor: float = 0.0
+    wall_time_s: float = 0.0
+    odometry: dict | None = None
+    targets: list[TargetRow] = field(default_factory=list)
+    incidents: list[dict] = field(default_factory=list)
+    intervention_log: list[dict] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return self.targets_reached / self.targets_requested if self.targets_requested else 0.0
+
+    def to_json(self) -> str:
+        data = asdict(self)
+        data["success_rate"] = self.success_rate
+        return json.dumps(_finite(data), indent=2)
+
+
+def _finite(value):
+    """JSON has no inf/nan: they become null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
+
+
+@dataclass
+class MissionProgress:
+    """Passed to the progress callback after every control step."""
+
+    sim_time_s: float
+    targets_done: int
+    targets_reached: int
+    distance_m: float
+
+
+def mission_robot(robot: RobotSpec, settings: MissionSettings) -> RobotSpec:
+    """The robot as a mission runs it: cameras render depth only, unless the pose source needs colour."""
+    if settings.pose_source == "vosf":
+        return robot
+    sensors = [s.model_copy(update={"rgb": False}) if s.type == "rgbd" else s for s in robot.sensors]
+    return robot.model_copy(update={"sensors": sensors})
+
+
+def mission_sim_config(settings: MissionSettings) -> SimConfig:
+    """The simulator settings of a mission: closed loop, so readings arrive exactly at their stamps."""
+    return settings.sim.model_copy(update={"lockstep": True})
+
+
+def run_mission(world: WorldSpec, robot: RobotSpec, settings: MissionSettings, out_dir: Path | None = None,
+                progress: Callable[[MissionProgress], None] | None = None) -> MissionReport:
+    """Run a mission and (with ``out_dir``) write its report, trajectories and plot.
+
+    Returns:
+        The report; its ``targets`` rows list every target drawn, reached or not.
+    """
+    runner = _MissionRunner(world, robot, settings, out_dir)
+    try:
+        return runner.run(progress)
+    finally:
+        runner.close()
+
+
+class _MissionRunner:
+    def __init__(self, world: WorldSpec, robot: RobotSpec, settings: MissionSettings, out_dir: Path | None) -> None:
+        self.world, self.robot_spec, self.settings = world, robot, settings
+        self.out_dir = Path(out_dir) if out_dir is not None else None
+        self.pose = PoseSource(settings.pose_source, robot)
+        self.sim = Simulator(world, robot, mission_sim_config(settings), seed=settings.seed)
+        self.robot = SimRobot(self.sim)
+        bands = robot_bands(robot) if settings.nav == "3d" else planar_bands(robot)
+        nav_cfg = NavigatorConfig(memory=settings.memory, stuck_timeout_s=settings.stuck_timeout_s)
+        drive = robot.drive
+        self.nav = ReactiveNavigator3D(bands, drive.max_v_m_s, drive.max_w_rad_s, max_acc_m_s2=drive.max_acc_m_s2,
+                                       max_ang_acc_rad_s2=drive.max_ang_acc_rad_s2, config=nav_cfg)
+        self.obstacles = SensedObstacles()
+        self.rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 7]))
+        self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,
+                                    settings.pose_source, self.sim.pedestrian_count)
+        self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
+        self._gt: list[tuple[float, np.ndarray]] = []
+        self._step_times: list[float] = []
+        self._speeds: list[float] = []
+
+    def close(self) -> None:
+        self.sim.close()
+
+    # ------------------------------------------------------------------------------------------------- loop
+    def run(self, progress: Callable[[MissionProgress], None] | None) -> MissionReport:
+        s, started = self.settings, time.perf_counter()
+        self.pose.anchor(0.0, self._true_pose())
+        self._record_gt()
+        next_clearance = 0.0
+        route = self._new_target()
+        while not self._finished():
+            cmd = self._control_step()
+            self._record_gt()
+            if self.sim.time_s >= next_clearance:
+                self._measure_clearance()
+                next_clearance = self.sim.time_s + CLEARANCE_PERIOD_S
+            row = self.report.targets[-1]
+            if cmd.state == "reached":
+                self._close_target(row, reached=True)
+                route = self._new_target() if not self._finished() else route
+            elif cmd.stuck:
+                route = self._intervene(row, route)
+            elif self.sim.time_s - self._target_start_s > s.max_target_time_s:
+                self._close_target(row, reached=False)
+                route = self._new_target() if not self._finished() else route
+            if progress is not None:
+                progress(MissionProgress(self.sim.time_s, self._targets_done(), self.report.targets_reached,
+                                         self.report.distance_m))
+        self._finish(time.perf_counter() - started)
+        return self.report
+
+    def _finished(self) -> bool:
+        s = self.settings
+        if s.duration_s is not None and self.sim.time_s >= s.duration_s:
+            return True
+        return s.targets is not None and self._targets_done() >= s.targets
+
+    def _targets_done(self) -> int:
+        return sum(1 for r in self.report.targets if r.reached or r.time_s > 0)
+
+    def _control_step(self):
+        # Readings since the last step: odometry and obstacle points
+        T_true = self._true_pose()
+        for reading in self.robot.poll_readings():
+            self.pose.feed(reading)
+            T_at = (se2.from_se3(self.sim.T_world_base_at(reading.stamp_s)) if self.pose.is_ground_truth
+                    else self.pose.T_world_base())
+            self.obstacles.add(reading, T_at)
+        # Navigate from the estimated pose
+        now = self.robot.now_s()
+        T_est = self.pose.T_world_base(T_true)
+        cmd = self.nav.step(now, T_est, self.obstacles.points_base(now, T_est))
+        self._step_times.append(cmd.runtime_s)
+        self.robot.send_velocity(cmd.v_m_s, cmd.w_rad_s)
+        self.robot.wait_next_period()
+        return cmd
+
+    # ---------------------------------------------------------------------------------------------- targets
+    def _new_target(self) -> list[int]:
+        """Draw the next target node and hand its roadmap route to the navigator."""
+        graph = self.sim.roadmap
+        xy = self._true_pose()[:2, 2]
+        start = graph.nearest_node(xy)
+        node = graph.random_node(self.rng, exclude=start)
+        route = graph.shortest_path(start, node)
+        shortest = float(np.linalg.norm(graph.nodes_xy[route[0]] - xy)) + graph.path_length_m(route)
+        target = graph.nodes_xy[node]
+        self.report.targets.append(TargetRow(len(self.report.targets), int(node), float(target[0]),
+                                             float(target[1]), start_s=self.sim.time_s, shortest_m=shortest))
+        self.report.targets_requested += 1
+        self._target_start_s, self._target_start_distance = self.sim.time_s, self.report.distance_m
+        self.nav.set_waypoints(graph.nodes_xy[route])
+        return route
+
+    def _close_target(self, row, reached: bool) -> None:
+        row.reached = reached
+        row.time_s = max(self.sim.time_s - self._target_start_s, 1e-9)
+        row.distance_m = self.report.distance_m - self._target_start_distance
+        if reached:
+            self.report.targets_reached += 1
+            if row.interventions == 0 and row.shortest_m > 0:
+                row.path_length_ratio = row.distance_m / row.shortest_m
+
+    def _intervene(self, row, route: list[int]) -> list[int]:
+        """Stuck: move the robot to the next roadmap node of its route and go on (counted as an intervention)."""
+        graph = self.sim.roadmap
+        xy = self._true_pose()[:2, 2]
+        remaining = [n for n in route if np.linalg.norm(graph.nodes_xy[n] - xy) > 0.5] or route[-1:]
+        node = remaining[0]
+        nxt = remaining[1] if len(remaining) > 1 else node
+        heading = graph.nodes_xy[nxt] - graph.nodes_xy[node]
+        yaw = math.atan2(heading[1], heading[0]) if np.linalg.norm(heading) > 0 else 0.0
+        x, y = graph.nodes_xy[node]
+        self.sim.teleport(float(x), float(y), yaw)
+        self.report.interventions += 1
+        row.interventions += 1
+        self.report.intervention_log.append({"time_s": self.sim.time_s, "target": row.index, "x_m": float(xy[0]),
+                                             "y_m": float(xy[1]), "moved_to_node": int(node)})
+        self.pose.anchor(self.sim.time_s, self._true_pose())
+        self.obstacles.reset()
+        self._last_xy = None
+        self.nav.set_waypoints(graph.nodes_xy[remaining])
+        return remaining
+
+    # ----------------------------------------------------------------------------------------- measurements
+    def _true_pose(self) -> np.ndarray:
+        return se2.from_se3(self.sim.T_world_base)
+
+    def _record_gt(self) -> None:
+        T = self.sim.T_world_base
+        if self._gt and getattr(self, "_last_xy", None) is not None:
+            step = float(np.linalg.norm(T[:2, 3] - self._last_xy))
+            self.report.distance_m += step
+        self._last_xy = T[:2, 3].copy()
+        self._gt.append((self.sim.time_s, T.copy()))
+        v, _ = self.sim.base_velocity()
+        self._speeds.append(abs(v))
+
+    def _measure_clearance(self) -> None:
+        """Distance from every prism of the robot (true pose) to the static obstacles in its height band."""
+        from shapely import affinity
+        from shapely.geometry import Polygon
+
+        x, y, yaw = self.sim.pose_xy_yaw
+        for prism, static in zip(self.robot_spec.prisms, self._static, strict=True):
+            if static.is_empty:
+                continue
+            shape = affinity.translate(affinity.rotate(Polygon(prism.polygon), yaw, origin=(0, 0), use_radians=True),
+                                       x, y)
+            self.report.min_clearance_m = min(self.report.min_clearance_m, float(shape.distance(static)))
+
+    def _finish(self, wall_s: float) -> None:
+        r = self.report
+        last = r.targets[-1] if r.targets else None
+        if last is not None and not last.reached and last.time_s == 0:
+            # the mission ended (duration) while this target was under way: it is neither reached nor requested
+            r.targets.pop()
+            r.targets_requested -= 1
+        r.duration_s = self.sim.time_s
+        r.wall_time_s = wall_s
+        r.real_time_factor = self.sim.time_s / wall_s if wall_s > 0 else math.inf
+        r.avg_speed_m_s = r.distance_m / r.duration_s if r.duration_s > 0 else 0.0
+        r.max_speed_m_s = float(max(self._speeds, default=0.0))
+        ms = np.array(self._step_times) * 1e3
+        r.navigator_step_ms = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95))} if len(ms) else \
+            {"median": 0.0, "p95": 0.0}
+        ratios = [t.path_length_ratio for t in r.targets if math.isfinite(t.path_length_ratio)]
+        r.path_length_ratio = float(np.mean(ratios)) if ratios else float("nan")
+        self._count_incidents()
+        if not self.pose.is_ground_truth:
+            r.odometry = self._odometry_drift()
+        if self.out_dir is not None:
+            self._write()
+
+    def _count_incidents(self) -> None:
+        """Contacts merged per body within ``INCIDENT_MERGE_S``, sorted into static / door / people / robots."""
+        r = self.report
+        last_seen: dict[str, float] = {}
+        for event in self.sim.contact_events:
+            previous = last_seen.get(event.other)
+            last_seen[event.other] = event.stamp_s
+            if previous is not None and event.stamp_s - previous < INCIDENT_MERGE_S:
+                continue
+            kind = _incident_kind(event.kind, event.other)
+            r.minor_incidents[kind] += 1
+            r.minor_incidents["total"] += 1
+            target = _target_at(r.targets, event.stamp_s)
+            if target is not None:
+                target.incidents += 1
+            r.incidents.append({"time_s": event.stamp_s, "kind": kind, "other": event.other,
+                                "x_m": float(event.position_world[0]), "y_m": float(event.position_world[1])})
+
+    def _odometry_drift(self) -> dict:
+        from simnav.io.tum import Trajectory
+        from simnav.metrics import ate, rpe_per_second
+
+        est = self.pose.estimates
+        if len(est) < 3:
+            return {"source": self.pose.name, "error": "too few estimates"}
+        gt = Trajectory(np.array([t for t, _ in self._gt]), np.array([T for _, T in self._gt]))
+        est_traj = Trajectory(np.array([t for t, _ in est]), np.array([se2.to_se3(T) for _, T in est]))
+        out = {"source": self.pose.name, "sensor": self.pose.sensor, "anchors": 1 + self.report.interventions}
+        try:
+            out["rpe"] = rpe_per_second(est_traj, gt).as_dict()
+            out["ate"] = ate(est_traj, gt).as_dict()
+            final = np.linalg.norm(est[-1][1][:2, 2] - self._gt[-1][1][:2, 3])
+            out["final_error_m"] = float(final)
+        except ValueError as err:
+            out["error"] = str(err)
+        return out
+
+    # ------------------------------------------------------------------------------------------------ files
+    def _write(self) -> None:
+        from simnav.mission.plot import plot_mission
+
+        out = self.out_dir
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "mission.yaml").write_text(dump_yaml(self.settings))
+        (out / "world.yaml").write_text(dump_yaml(self.world))
+        (out / "robot.yaml").write_text(dump_yaml(self.robot_spec))
+        with TumWriter(out / "trajectory_gt.txt") as w:
+            for t, T in self._gt:
+                w.write(t, T)
+        with TumWriter(out / "trajectory_est.txt") as w:
+            for t, T in (self.pose.estimates if not self.pose.is_ground_truth else
+                         [(t, se2.from_se3(T)) for t, T in self._gt]):
+                w.write(t, se2.to_se3(T))
+        (out / "report.json").write_text(self.report.to_json() + "\n")
+        plot_mission(self.sim.world, self.sim.roadmap, np.array([T[:2, 3] for _, T in self._gt]), self.report,
+                     out / "mission.png")
+
+
+def _incident_kind(kind: str, other: str) -> str:
+    if kind == "static":
+        return "static"
+    if kind == "door":
+        return "door"
+    return "robots" if other.startswith("wander") else "people"
+
+
+def _target_at(rows: list[TargetRow], stamp_s: float) -> TargetRow | None:
+    """The target under way at ``stamp_s`` (rows are in time order)."""
+    started = [row for row in rows if row.start_s <= stamp_s]
+    return started[-1] if started else None

@@ -1,0 +1,119 @@
+"""The robot as a stack of prisms, and obstacle points sorted into the prisms' height bands (thesis §6.C.4).
+
+A :class:`Band` is one prism: a base-frame polygon extruded between two heights. Obstacle points from every range
+sensor, expressed in the base frame (x forward, y left, z up, metres), go to the band whose height interval holds
+them; points on the floor, above the robot or in a height gap between prisms touch no part of the robot and are
+dropped. Each band keeps one point per grid cell of its (x, y) plane, which keeps every obstacle the collision
+grid can tell apart and bounds the work per step.
+
+The 2D variant (``planar_bands``) models the robot by one prism, the convex hull of all its sections, and projects
+every point above the floor onto it, whatever its height: the classic 2D navigator that §6.C compares against.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from shapely.geometry import MultiPoint
+
+from simnav.robot.spec import RobotSpec
+
+FLOOR_TOLERANCE_M = 0.02
+"""Points below this height are the floor (ranges of a lidar grazing the floor, depth of the floor itself)."""
+
+
+@dataclass(frozen=True)
+class Band:
+    """One prism of the robot.
+
+    Attributes:
+        name: prism name.
+        z_min_m: bottom of the band, m (base frame).
+        z_max_m: top of the band, m.
+        polygon: (M, 2) counter-clockwise vertices of the section in the base frame, m.
+    """
+
+    name: str
+    z_min_m: float
+    z_max_m: float
+    polygon: np.ndarray
+
+    def __post_init__(self) -> None:
+        poly = np.asarray(self.polygon, dtype=np.float64)
+        if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3:
+            raise ValueError(f"band '{self.name}': polygon must be (M >= 3, 2), got {poly.shape}")
+        if not self.z_max_m > self.z_min_m:
+            raise ValueError(f"band '{self.name}': z_max_m={self.z_max_m} must exceed z_min_m={self.z_min_m}")
+        object.__setattr__(self, "polygon", _counter_clockwise(poly))
+
+
+def _counter_clockwise(poly: np.ndarray) -> np.ndarray:
+    """The polygon with counter-clockwise vertex order (positive signed area)."""
+    x, y = poly[:, 0], poly[:, 1]
+    area2 = np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)
+    return poly if area2 > 0 else poly[::-1].copy()
+
+
+def grow(band: Band, margin_m: float) -> Band:
+    """The band with its section grown by ``margin_m`` (mitred corners, so a box stays a box), m."""
+    if margin_m <= 0:
+        return band
+    from shapely.geometry import Polygon
+
+    grown = Polygon(band.polygon).buffer(margin_m, join_style="mitre")
+    return Band(band.name, band.z_min_m, band.z_max_m, np.asarray(grown.exterior.coords)[:-1])
+
+
+def robot_bands(robot: RobotSpec) -> list[Band]:
+    """The robot's prisms as bands, bottom to top (the 3D model of §6.C)."""
+    prisms = sorted(robot.prisms, key=lambda p: p.z_min_m)
+    return [Band(p.name, p.z_min_m, p.z_max_m, np.asarray(p.polygon, dtype=np.float64)) for p in prisms]
+
+
+def planar_bands(robot: RobotSpec) -> list[Band]:
+    """One band holding every point above the floor, whose section is the convex hull of every prism (2D model)."""
+    vertices = np.concatenate([np.asarray(p.polygon, dtype=np.float64) for p in robot.prisms])
+    hull = np.asarray(MultiPoint(vertices.tolist()).convex_hull.exterior.coords)[:-1]
+    return [Band("planar", 0.0, math.inf, hull)]
+
+
+def sort_into_bands(points_base: np.ndarray, bands: Sequence[Band], *, cell_m: float, max_xy_m: float,
+                    floor_m: float = FLOOR_TOLERANCE_M) -> list[np.ndarray]:
+    """Sort 3D obstacle points into the bands' height intervals, one point per (x, y) cell.
+
+    Args:
+        points_base: (P, 3) obstacle points in the base frame, m; NaN/inf rows are ignored.
+        bands: the robot's bands.
+        cell_m: (x, y) cell size of the per-band reduction, m (the collision grid's resolution).
+        max_xy_m: points with |x| or |y| beyond this are ignored (outside every collision grid), m.
+        floor_m: points below this height are the floor, m.
+
+    Returns:
+        One (P_i, 2) array of (x, y) obstacle positions per band, in the base frame, m.
+    """
+    pts = np.asarray(points_base, dtype=np.float64).reshape(-1, 3)
+    # Keep finite points above the floor and inside the grids' extent
+    keep = np.isfinite(pts).all(axis=1)
+    keep &= pts[:, 2] >= floor_m
+    keep &= (np.abs(pts[:, 0]) <= max_xy_m) & (np.abs(pts[:, 1]) <= max_xy_m)
+    pts = pts[keep]
+    out = []
+    for band in bands:
+        # A point belongs to the band that holds its height
+        z = pts[:, 2]
+        xy = pts[(z >= band.z_min_m) & (z < band.z_max_m), :2]
+        out.append(_one_per_cell(xy, cell_m))
+    return out
+
+
+def _one_per_cell(xy: np.ndarray, cell_m: float) -> np.ndarray:
+    """(Q, 2) the first point of every occupied ``cell_m`` cell of (P, 2) ``xy``."""
+    if len(xy) == 0:
+        return xy.reshape(0, 2)
+    cells = np.floor(xy / cell_m).astype(np.int64)
+    key = (cells[:, 0] << 32) + cells[:, 1]  # one integer per cell (|cell index| < 2^31)
+    _, first = np.unique(key, return_index=True)
+    return xy[np.sort(first)]

@@ -1,0 +1,442 @@
+"""The 3D-PTG reactive navigator (thesis §6.C): the robot as stacked prisms, one set of PTGs per prism.
+
+One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and the pose in a fixed frame:
+
+1. sort the points into the robot's height bands and add the short-term memory's virtual obstacles;
+2. for every path family (PTG), the TP-NavLimits of each band from that band's collision grid, combined by the
+   minimum over bands (eq. 6.4);
+3. the target (the furthest waypoint ahead that a PTG reports reachable) into each TP-space; the holonomic method
+   (ND or VFF) picks a direction and a speed per PTG; the secure-distance ramp scales the speed;
+4. the best candidate by the weighted factors f1-f4 (eq. 6.5): collision-free distance, TP-angle to the target,
+   closest approach of the path to the target, similarity to the previous command;
+5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
+   approach to the final target, then limited in acceleration.
+
+When every path is blocked the robot backs away slowly for a few seconds if the space behind is free, then stops
+and waits (§6.C.6). A target whose distance has not improved for ``stuck_timeout_s`` marks the navigator stuck.
+Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simnav.geometry import se2
+from simnav.navigation.bands import Band, grow, sort_into_bands
+from simnav.navigation.holonomic import HolonomicInput
+from simnav.navigation.memory import MemoryConfig, ShortTermMemory
+
+STATES = ("idle", "navigating", "reached", "blocked", "recovering", "waiting")
+
+
+@dataclass(frozen=True)
+class NavigatorConfig:
+    """Options of the 3D-PTG navigator; the defaults are the product (after MRPT's 3D sample and §6.C).
+
+    Attributes:
+        ptgs: path families (``"C"``, ``"alpha"``, ``"CS"``, ``"C-backward"``), one set of grids per band each.
+        num_paths: paths per PTG.
+        ref_distance_m: horizon of the TP-spaces, m.
+        grid_resolution_m: cell size of the collision grids, m.
+        footprint_margin_m: every section is grown by this much for the collision grids, so that chosen paths keep
+            this clearance (the robot's true shape is used for the blocked-goal and recovery checks), m.
+        holonomic: ``"nd"`` (default, as in §6.C.6) or ``"vff"``.
+        secure_distance_start: below this normalised free distance the chosen path gets speed 0.
+        secure_distance_end: above it, full speed (linear ramp in between).
+        weight_free_distance: w1 of eq. 6.5 (collision-free distance of the candidate).
+        weight_target_angle: w2 (TP-angle between the candidate and the target).
+        weight_target_nearness: w3 (closest approach of the candidate's path to the target).
+        weight_hysteresis: w4 (similarity of the command to the previous one).
+        weight_target_distance: reward for reaching the target along the candidate within its free distance.
+        backward_priority: score factor of backward PTGs (they are a last resort).
+        target_allowed_distance_m: the final target counts as reached within this distance, m.
+        waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
+        target_slow_down_m: the speed falls linearly over this distance to the final target, m.
+        target_min_speed: relative speed kept at the final target (0..1).
+        slow_down_distance_m: obstacles (their effective distance) closer than this reduce the speed, m.
+        stop_distance_m: at this effective distance the speed reaches ``min_speed_near_obstacles``, m.
+        min_speed_near_obstacles: relative speed floor of the obstacle speed regulation (0..1).
+        lateral_obstacle_weight: how much an obstacle straight to the side counts relative to one in front.
+        memory: use the short-term memory.
+        memory_config: its options.
+        recovery_speed_m_s: backward speed while recovering, m/s.
+        recovery_min_s: once backing away, keep at it at least this long before moving forward again, s.
+        recovery_duration_s: back away at most this long, then stop and wait, s.
+        recovery_clearance_m: back away only if the space behind is free for this distance, m.
+        stuck_timeout_s: the navigator reports ``stuck`` when the distance to the target has not improved by
+            ``stuck_progress_m`` for this long, s.
+        stuck_progress_m: progress that resets the stuck timer, m.
+        blocked_check_m: within this distance of the goal, check whether the robot would collide if it stood on
+            the goal (then it stops there, state ``blocked``, until the goal clears), m.
+        blocked_confirm_steps: consecutive steps the goal must look blocked before stopping.
+    """
+
+    ptgs: tuple[str, ...] = ("C", "alpha", "CS")
+    num_paths: int = 121
+    ref_distance_m: float = 4.0
+    grid_resolution_m: float = 0.05
+    footprint_margin_m: float = 0.05
+    holonomic: str = "nd"
+    secure_distance_start: float = 0.05
+    secure_distance_end: float = 0.15
+    weight_free_distance: float = 0.5
+    weight_target_angle: float = 0.2
+    weight_target_nearness: float = 8.0
+    weight_hysteresis: float = 0.1
+    weight_target_distance: float = 0.3
+    backward_priority: float = 0.5
+    target_allowed_distance_m: float = 0.3
+    waypoint_allowed_distance_m: float = 1.0
+    target_slow_down_m: float = 0.8
+    target_min_speed: float = 0.15
+    slow_down_distance_m: float = 0.8
+    stop_distance_m: float = 0.15
+    min_speed_near_obstacles: float = 0.3
+    lateral_obstacle_weight: float = 0.5
+    memory: bool = True
+    memory_config: MemoryConfig = field(default_factory=MemoryConfig)
+    recovery_speed_m_s: float = 0.08
+    recovery_min_s: float = 1.0
+    recovery_duration_s: float = 3.0
+    recovery_clearance_m: float = 0.3
+    stuck_timeout_s: float = 30.0
+    stuck_progress_m: float = 0.2
+    blocked_check_m: float = 2.0
+    blocked_confirm_steps: int = 3
+
+    def __post_init__(self) -> None:
+        checks = [
+            (len(self.ptgs) >= 1, "ptgs must name at least one path family"),
+            (self.num_paths >= 3, "num_paths must be >= 3"),
+            (self.ref_distance_m > 0, "ref_distance_m must be > 0"),
+            (0 < self.grid_resolution_m < self.ref_distance_m, "grid_resolution_m must be in (0, ref_distance_m)"),
+            (self.footprint_margin_m >= self.grid_resolution_m / math.sqrt(2) - 1e-9,
+             "footprint_margin_m must be at least half the diagonal of a grid cell (grid_resolution_m / sqrt(2))"),
+            (0 <= self.secure_distance_start < self.secure_distance_end <= 1,
+             "need 0 <= secure_distance_start < secure_distance_end <= 1"),
+            (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
+            (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
+            (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
+            (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(f"NavigatorConfig: {message}")
+
+
+@dataclass(frozen=True)
+class NavCommand:
+    """The output of one navigator step.
+
+    Attributes:
+        v_m_s: forward speed command, m/s.
+        w_rad_s: yaw rate command, rad/s.
+        state: one of ``STATES``.
+        stuck: True when the target has not come closer for ``stuck_timeout_s``.
+        target_index: index of the waypoint being aimed at, -1 when idle.
+        ptg: name of the chosen path family ('' when none).
+        path_index: chosen path k of that PTG (-1 when none).
+        free_distance: normalised collision-free distance of the chosen path.
+        speed: relative speed (0..1) after all regulation.
+        runtime_s: wall time of the step, s.
+    """
+
+    v_m_s: float
+    w_rad_s: float
+    state: str
+    stuck: bool = False
+    target_index: int = -1
+    ptg: str = ""
+    path_index: int = -1
+    free_distance: float = 0.0
+    speed: float = 0.0
+    runtime_s: float = 0.0
+
+
+@dataclass
+class _Candidate:
+    ptg: int
+    k: int
+    speed: float
+    free: float
+    score: float
+
+
+class ReactiveNavigator3D:
+    """The reactive navigator for one robot.
+
+    Args:
+        bands: the robot's height bands (``robot_bands(spec)``; ``planar_bands(spec)`` for the 2D navigator).
+        max_v_m_s: the robot's top speed, m/s.
+        max_w_rad_s: the robot's top yaw rate, rad/s.
+        max_acc_m_s2: linear acceleration limit of the output, m/s^2 (None = unlimited).
+        max_ang_acc_rad_s2: angular acceleration limit of the output, rad/s^2 (None = unlimited).
+        config: navigator options.
+        cache_dir: where collision grids are cached (None = the default cache).
+    """
+
+    def __init__(self, bands: Sequence[Band], max_v_m_s: float, max_w_rad_s: float, *,
+                 max_acc_m_s2: float | None = None, max_ang_acc_rad_s2: float | None = None,
+                 config: NavigatorConfig | None = None, cache_dir: str | None = None) -> None:
+        from simnav.navigation.holonomic import make_holonomic
+        from simnav.navigation.ptgspace import PTGSpace
+
+        self.config = cfg = config or NavigatorConfig()
+        self.bands = list(bands)
+        self.max_v_m_s, self.max_w_rad_s = float(max_v_m_s), float(max_w_rad_s)
+        self._acc = (max_acc_m_s2, max_ang_acc_rad_s2)
+        padded = [grow(band, cfg.footprint_margin_m) for band in self.bands]
+        self._spaces = [PTGSpace(name, padded, max_v_m_s, max_w_rad_s, cfg.num_paths, cfg.ref_distance_m,
+                                 cfg.grid_resolution_m, cache_dir) for name in cfg.ptgs]
+        self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
+        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
+        self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
+        self.reset()
+
+    # ---------------------------------------------------------------------------------------------- targets
+    def reset(self) -> None:
+        """Forget targets, memory and the previous command."""
+        self._waypoints = np.zeros((0, 2))
+        self._target = 0
+        self._last_cmd = (0.0, 0.0)
+        self._last_stamp_s: float | None = None
+        self._best_distance = math.inf
+        self._best_distance_stamp_s: float | None = None
+        self._blocked_since_s: float | None = None
+        self._goal_blocked_steps = 0
+        for method in getattr(self, "_holonomic", []):
+            method.reset()
+        if self._memory is not None:
+            self._memory.reset()
+
+    def set_waypoints(self, waypoints_xy: np.ndarray) -> None:
+        """Follow (W, 2) waypoints (fixed frame, m) in order without stopping; the last one is the goal."""
+        wp = np.asarray(waypoints_xy, dtype=np.float64).reshape(-1, 2)
+        if len(wp) == 0 or not np.isfinite(wp).all():
+            raise ValueError(f"waypoints must be a non-empty (W, 2) finite array, got shape {wp.shape}")
+        self._waypoints, self._target = wp, 0
+        self._best_distance, self._best_distance_stamp_s = math.inf, None
+        self._blocked_since_s = None
+
+    def set_target(self, target_xy: Sequence[float]) -> None:
+        """Go to one target (fixed frame, m)."""
+        self.set_waypoints(np.asarray(target_xy, dtype=np.float64).reshape(1, 2))
+
+    @property
+    def goal_reached(self) -> bool:
+        return len(self._waypoints) > 0 and self._target >= len(self._waypoints)
+
+    # ------------------------------------------------------------------------------------------------ step
+    def step(self, stamp_s: float, T_odom_base: np.ndarray, points_base: np.ndarray) -> NavCommand:
+        """One navigation step.
+
+        Args:
+            stamp_s: time, s.
+            T_odom_base: (3, 3) SE(2) pose of the base in the frame of the waypoints.
+            points_base: (P, 3) obstacle points in the base frame, m (every range sensor; floor points allowed).
+
+        Returns:
+            The velocity command and what the navigator decided.
+        """
+        t0 = time.perf_counter()
+        dt = 0.0 if self._last_stamp_s is None else max(stamp_s - self._last_stamp_s, 0.0)
+        self._last_stamp_s = stamp_s
+        if len(self._waypoints) == 0 or self.goal_reached:
+            return self._output(0.0, 0.0, dt, t0, "reached" if self.goal_reached else "idle")
+        self._advance_waypoints(T_odom_base)
+        if self.goal_reached:
+            return self._output(0.0, 0.0, dt, t0, "reached")
+        # Obstacles per band (sensed + remembered)
+        cfg = self.config
+        band_xy = sort_into_bands(points_base, self.bands, cell_m=cfg.grid_resolution_m,
+                                  max_xy_m=1.1 * cfg.ref_distance_m)
+        if self._memory is not None:
+            virtual = self._memory.update(stamp_s, T_odom_base, band_xy)
+            band_xy = [np.concatenate([real, extra]) if len(extra) else real for real, extra in zip(band_xy, virtual,
+                                                                                                    strict=True)]
+        # TP-NavLimits per PTG: minimum over the bands (eq. 6.4)
+        limits = [space.tp_limits(band_xy) for space in self._spaces]
+        target_index = self._reachable_target(T_odom_base, limits)
+        target_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[target_index][None])[0]
+        self._update_stuck(stamp_s, T_odom_base)
+        if self._goal_is_blocked(T_odom_base, band_xy):
+            return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
+        # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
+        best = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
+        recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
+        if best is None or best.speed <= 0.0 or recovering:
+            return self._recover(stamp_s, dt, t0, limits, band_xy, target_index)
+        self._blocked_since_s = None
+        space = self._spaces[best.ptg]
+        v, w = space.command(best.k)
+        speed = best.speed * self._obstacle_speed_factor(band_xy) * self._approach_speed_factor(T_odom_base)
+        v, w = self._limit_speeds(v * speed, w * speed)
+        return self._output(v, w, dt, t0, "navigating", target_index, space.name, best.k, best.free, speed)
+
+    # ------------------------------------------------------------------------------------------- waypoints
+    def _advance_waypoints(self, T_odom_base: np.ndarray) -> None:
+        """Pass waypoints within their allowed distance; the goal needs ``target_allowed_distance_m``."""
+        xy = T_odom_base[:2, 2]
+        while self._target < len(self._waypoints):
+            last = self._target == len(self._waypoints) - 1
+            allowed = self.config.target_allowed_distance_m if last else self.config.waypoint_allowed_distance_m
+            if np.linalg.norm(self._waypoints[self._target] - xy) > allowed:
+                break
+            self._target += 1
+            self._best_distance, self._best_distance_stamp_s = math.inf, None
+
+    def _reachable_target(self, T_odom_base: np.ndarray, limits: list[np.ndarray]) -> int:
+        """The furthest waypoint ahead within the horizon that some PTG reaches collision-free, else the current."""
+        ahead = np.arange(self._target + 1, len(self._waypoints))
+        if len(ahead) == 0:
+            return self._target
+        xy = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[ahead])
+        near = np.hypot(xy[:, 0], xy[:, 1]) < self.config.ref_distance_m
+        if not near.any():
+            return self._target
+        ahead, xy = ahead[near], xy[near]
+        reachable = np.zeros(len(ahead), dtype=bool)
+        for space, lim in zip(self._spaces, limits, strict=True):
+            k, d, exact = space.inverse_map_many(xy)
+            reachable |= exact & (d <= 1.0) & (lim[k] > 1.01 * d)
+        if reachable.any():
+            self._target = int(ahead[np.nonzero(reachable)[0][-1]])
+        return self._target
+
+    def _goal_is_blocked(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> bool:
+        """Whether the robot, standing on the goal (facing away from here), would overlap an obstacle."""
+        from simnav.navigation.collision_grid import points_in_polygon
+
+        goal = self._waypoints[-1]
+        offset = goal - T_odom_base[:2, 2]
+        if float(np.linalg.norm(offset)) > self.config.blocked_check_m:
+            self._goal_blocked_steps = 0
+            return False
+        T_goal = se2.inverse(T_odom_base) @ se2.from_xy_yaw(goal[0], goal[1], math.atan2(offset[1], offset[0]))
+        T_goal_base = se2.inverse(T_goal)
+        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_goal_base, pts), band.polygon))
+                  for band, pts in zip(self.bands, band_xy, strict=True))
+        self._goal_blocked_steps = self._goal_blocked_steps + 1 if hit else 0
+        return self._goal_blocked_steps >= self.config.blocked_confirm_steps
+
+    def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
+        d = float(np.linalg.norm(self._waypoints[-1] - T_odom_base[:2, 2]))
+        if self._best_distance_stamp_s is None or d < self._best_distance - self.config.stuck_progress_m:
+            self._best_distance, self._best_distance_stamp_s = d, stamp_s
+
+    # ------------------------------------------------------------------------------------------ candidates
+    def _best_candidate(self, target_base: np.ndarray, limits: list[np.ndarray], final: bool) -> _Candidate | None:
+        cfg = self.config
+        best: _Candidate | None = None
+        for i, (space, lim) in enumerate(zip(self._spaces, limits, strict=True)):
+            k_t, d_t, _ = space.inverse_map(float(target_base[0]), float(target_base[1]))
+            decision = self._holonomic[i].navigate(HolonomicInput.toward_path(
+                lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m, slow_down_near_target=final))
+            k, speed = int(decision.direction_k), float(decision.speed)
+            free = float(lim[k])
+            speed *= float(np.clip((free - cfg.secure_distance_start)
+                                   / (cfg.secure_distance_end - cfg.secure_distance_start), 0.0, 1.0))
+            if speed <= 0.0:
+                continue
+            score = self._score(space, k, free, k_t, d_t, target_base)
+            if best is None or score > best.score:
+                best = _Candidate(i, k, speed, free, score)
+        return best
+
+    def _score(self, space, k: int, free: float, k_t: int, d_t: float, target_base: np.ndarray) -> float:
+        """Eq. 6.5 with the factors of §6.C.5 (as MRPT's scalarisation: larger is better)."""
+        cfg = self.config
+        n = space.num_paths
+        # f1: collision-free distance (saturates once the path reaches the target)
+        f1 = 1.0 if free > d_t + 0.05 else free
+        # f2: TP-angle between candidate and target, circular in k
+        dk = abs(k - k_t)
+        f2 = math.exp(-min(dk, n - dk) / (n / 10.0))
+        # f3: closest approach of the path (up to its free distance) to the target
+        d_min = space.closest_approach(k, min(free, 0.99 * d_t if d_t > 0 else free), target_base)
+        f3 = 1.0 / (1.0 + d_min**2)
+        # f4: similarity to the previous command
+        v, w = space.command(k)
+        v0, w0 = self._last_cmd
+        f4 = min(math.exp(-abs(v - v0) / (0.2 * self.max_v_m_s)), math.exp(-abs(w - w0) / (0.2 * self.max_w_rad_s)))
+        # reaching the target within the free distance
+        e = max(0.0, d_t)
+        f0 = 1.0 / (1.0 + e**2) if free > e else 0.0
+        score = (cfg.weight_free_distance * f1 + cfg.weight_target_angle * f2 + cfg.weight_target_nearness * f3
+                 + cfg.weight_hysteresis * f4 + cfg.weight_target_distance * f0)
+        return score * (cfg.backward_priority if space.backward else 1.0)
+
+    # -------------------------------------------------------------------------------------- speed regulation
+    def _obstacle_speed_factor(self, band_xy: list[np.ndarray]) -> float:
+        """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``."""
+        cfg = self.config
+        pts = np.concatenate(band_xy) if band_xy else np.zeros((0, 2))
+        if len(pts) == 0:
+            return 1.0
+        rng = np.hypot(pts[:, 0], pts[:, 1]) - self._robot_radius_m
+        frontal = np.clip(pts[:, 0] / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9), 0.0, 1.0)
+        weight = cfg.lateral_obstacle_weight + (1.0 - cfg.lateral_obstacle_weight) * frontal
+        effective = float(np.min(np.maximum(rng, 0.0) / np.maximum(weight, 1e-3)))
+        ramp = (effective - cfg.stop_distance_m) / (cfg.slow_down_distance_m - cfg.stop_distance_m)
+        return float(np.clip(ramp, cfg.min_speed_near_obstacles, 1.0))
+
+    def _approach_speed_factor(self, T_odom_base: np.ndarray) -> float:
+        """Slow down over ``target_slow_down_m`` before the final target."""
+        cfg = self.config
+        d = float(np.linalg.norm(self._waypoints[-1] - T_odom_base[:2, 2]))
+        return float(np.clip(cfg.target_min_speed + (1 - cfg.target_min_speed) * d / cfg.target_slow_down_m,
+                             0.0, 1.0))
+
+    def _limit_speeds(self, v: float, w: float) -> tuple[float, float]:
+        """Clamp (v, w) to the robot's limits together, which keeps the path's curvature."""
+        scale = max(abs(v) / self.max_v_m_s, abs(w) / self.max_w_rad_s, 1.0)
+        return v / scale, w / scale
+
+    def _accelerate(self, v: float, w: float, dt: float) -> tuple[float, float]:
+        """Acceleration-limited change from the previous command."""
+        acc_v, acc_w = self._acc
+        v0, w0 = self._last_cmd
+        if acc_v is not None and dt > 0:
+            v = v0 + float(np.clip(v - v0, -acc_v * dt, acc_v * dt))
+        if acc_w is not None and dt > 0:
+            w = w0 + float(np.clip(w - w0, -acc_w * dt, acc_w * dt))
+        return v, w
+
+    # --------------------------------------------------------------------------------------------- recovery
+    def _recover(self, stamp_s: float, dt: float, t0: float, limits: list[np.ndarray], band_xy: list[np.ndarray],
+                 target_index: int) -> NavCommand:
+        """Every path blocked: back away slowly while the space behind is free, then stop and wait (§6.C.6)."""
+        cfg = self.config
+        if self._blocked_since_s is None:
+            self._blocked_since_s = stamp_s
+        if stamp_s - self._blocked_since_s < cfg.recovery_duration_s and self._behind_is_free(band_xy):
+            return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "recovering", target_index)
+        return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
+
+    def _behind_is_free(self, band_xy: list[np.ndarray]) -> bool:
+        """Whether every band's section can slide straight back by ``recovery_clearance_m``."""
+        reach = self.config.recovery_clearance_m
+        for band, pts in zip(self.bands, band_xy, strict=True):
+            if len(pts) == 0:
+                continue
+            x_min = float(np.min(band.polygon[:, 0]))
+            y_lo, y_hi = float(np.min(band.polygon[:, 1])), float(np.max(band.polygon[:, 1]))
+            behind = (pts[:, 0] < x_min) & (pts[:, 0] > x_min - reach) & (pts[:, 1] > y_lo) & (pts[:, 1] < y_hi)
+            if np.any(behind):
+                return False
+        return True
+
+    # ---------------------------------------------------------------------------------------------- output
+    def _output(self, v: float, w: float, dt: float, t0: float, state: str, target_index: int = -1, ptg: str = "",
+                k: int = -1, free: float = 0.0, speed: float = 0.0) -> NavCommand:
+        v, w = self._accelerate(v, w, dt)
+        self._last_cmd = (v, w)
+        stuck = (self._best_distance_stamp_s is not None and self._last_stamp_s is not None
+                 and self._last_stamp_s - self._best_distance_stamp_s > self.config.stuck_timeout_s
+                 and state not in ("reached", "idle"))
+        return NavCommand(v, w, state, stuck, target_index, ptg, k, free, speed, time.perf_counter() - t0)

@@ -1,0 +1,91 @@
+"""Obstacle points from every range sensor, in the base frame at the current instant (thesis §6.C.5-6).
+
+Lidars, 3D lidars and depth cameras run at their own rates; the navigator runs at the control rate. The latest
+reading of each sensor is kept with the pose it was taken at; at every step the points are moved into the current
+base frame with the motion since then, so that a 10 Hz scan taken 80 ms ago still sits where the obstacles are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simnav.geometry import se2
+from simnav.sensors.readings import LaserScan, PointCloud, Reading, RGBDFrame
+
+
+@dataclass(frozen=True)
+class SensingConfig:
+    """How readings become obstacle points.
+
+    Attributes:
+        depth_stride: use every n-th row and column of depth images.
+        max_age_s: readings older than this are forgotten, s.
+        max_range_m: points farther than this from the sensor are ignored, m.
+    """
+
+    depth_stride: int = 4
+    max_age_s: float = 0.5
+    max_range_m: float = 8.0
+
+
+def reading_points_base(reading: Reading, config: SensingConfig = SensingConfig()) -> np.ndarray | None:
+    """(P, 3) obstacle points of one reading in the base frame at its stamp, m; None for non-range readings."""
+    if isinstance(reading, LaserScan):
+        pts = reading.points_base()  # valid beams only
+        near = np.asarray(reading.ranges_m)[reading.valid] <= config.max_range_m
+        return pts[near]
+    if isinstance(reading, PointCloud):
+        pts = reading.points_base()
+        return pts[np.isfinite(pts).all(axis=1) & (np.linalg.norm(pts, axis=1) <= config.max_range_m)]
+    if isinstance(reading, RGBDFrame):
+        return _depth_points_base(reading, config)
+    return None
+
+
+def _depth_points_base(frame: RGBDFrame, config: SensingConfig) -> np.ndarray:
+    """Back-project a strided depth image into the base frame."""
+    s = config.depth_stride
+    depth = np.asarray(frame.depth_m, dtype=np.float64)[::s, ::s]
+    v, u = np.mgrid[0:frame.depth_m.shape[0]:s, 0:frame.depth_m.shape[1]:s]
+    ok = np.isfinite(depth) & (depth > 0) & (depth <= config.max_range_m)
+    z, u, v = depth[ok], u[ok], v[ok]
+    K = frame.K
+    optical = np.column_stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z])
+    T = frame.T_base_sensor
+    return optical @ T[:3, :3].T + T[:3, 3]
+
+
+class SensedObstacles:
+    """The latest points of every range sensor, brought to the current base frame.
+
+    Args:
+        config: options.
+    """
+
+    def __init__(self, config: SensingConfig = SensingConfig()) -> None:
+        self.config = config
+        self._latest: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+
+    def reset(self) -> None:
+        self._latest.clear()
+
+    def add(self, reading: Reading, T_odom_base_at_stamp: np.ndarray) -> None:
+        """Keep a reading's points with the (3, 3) SE(2) base pose at its stamp (in any fixed frame)."""
+        pts = reading_points_base(reading, self.config)
+        if pts is not None:
+            self._latest[reading.sensor] = (reading.stamp_s, np.asarray(T_odom_base_at_stamp, dtype=np.float64), pts)
+
+    def points_base(self, now_s: float, T_odom_base_now: np.ndarray) -> np.ndarray:
+        """(P, 3) all kept points in the base frame at ``now_s``, given the current pose in the same fixed frame."""
+        clouds = []
+        T_base_odom = se2.inverse(T_odom_base_now)
+        for sensor, (stamp, T_then, pts) in list(self._latest.items()):
+            if now_s - stamp > self.config.max_age_s:
+                del self._latest[sensor]
+                continue
+            T = T_base_odom @ T_then  # base at the stamp, seen from the base now
+            xy = pts[:, :2] @ T[:2, :2].T + T[:2, 2]
+            clouds.append(np.column_stack([xy, pts[:, 2]]))
+        return np.concatenate(clouds) if clouds else np.zeros((0, 3))

@@ -1,0 +1,345 @@
+"""Holonomic methods in TP-space (thesis §6.C.3; MRPT's CHolonomicND / CHolonomicVFF, notes §1.3).
+
+Scenes use N = 121 paths: path 60 is α = 0 (straight ahead), lower indices are negative α.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from simnav.errors import ConfigError, UnknownNameError
+from simnav.navigation.holonomic import (
+    Gap,
+    HolonomicInput,
+    HolonomicMethod,
+    HolonomicND,
+    HolonomicVFF,
+    NDConfig,
+    NDSituation,
+    VFFConfig,
+    alpha_to_index,
+    index_to_alpha,
+    make_holonomic,
+)
+
+N = 121
+AHEAD = 60  # α = 0
+
+
+def _free() -> np.ndarray:
+    return np.ones(N)
+
+
+def _blocked(lo: int, hi: int, dist: float, base: float = 1.0) -> np.ndarray:
+    """Free (``base``) everywhere but paths lo..hi-1, free for ``dist``."""
+    obs = np.full(N, base)
+    obs[lo:hi] = dist
+    return obs
+
+
+def _nd(obs, alpha=0.0, dist=2.0, method=None, **inp):
+    return (method or HolonomicND()).navigate(HolonomicInput(obs, alpha, dist, **inp))
+
+
+def _vff(obs, alpha=0.0, dist=2.0, **inp):
+    return HolonomicVFF().navigate(HolonomicInput(obs, alpha, dist, **inp))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Direction grid
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_index_to_alpha_is_cell_centred_and_mirror_exact():
+    assert index_to_alpha(0, N) == pytest.approx(-math.pi + math.pi / N, abs=1e-15)
+    assert index_to_alpha(N - 1, N) == pytest.approx(math.pi - math.pi / N, abs=1e-15)
+    assert index_to_alpha(AHEAD, N) == 0.0
+    k = np.arange(N)
+    np.testing.assert_array_equal(index_to_alpha(k, N), -index_to_alpha(N - 1 - k, N))
+    np.testing.assert_allclose(index_to_alpha(np.arange(4), 4), np.array([-3, -1, 1, 3]) * math.pi / 4)
+
+
+def test_alpha_to_index_round_trips_and_wraps():
+    k = np.arange(N)
+    np.testing.assert_array_equal(alpha_to_index(index_to_alpha(k, N), N), k)
+    assert all(alpha_to_index(index_to_alpha(i, N), N) == i for i in (0, 1, 59, 60, 119, 120))
+    assert alpha_to_index(math.pi, N) == N - 1
+    assert alpha_to_index(-math.pi, N) == N - 1  # wrapped to +π, as MRPT's wrapToPi
+    assert alpha_to_index(-math.pi + 1e-9, N) == 0
+    assert alpha_to_index(0.3 + 4 * math.pi, N) == alpha_to_index(0.3, N) == 66
+    assert alpha_to_index(0.0, 4) == 2  # 1.5 rounds away from zero, as C's round
+    assert isinstance(alpha_to_index(0.1, N), int)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# ND
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_nd_free_space_heads_straight_at_the_target_at_full_speed():
+    out = _nd(_free(), alpha=0.3, dist=2.0)
+    assert out.situation == NDSituation.TARGET_DIRECTLY
+    assert out.direction_k == 66 and out.direction_alpha_rad == index_to_alpha(66, N)
+    assert out.speed == 1.0
+
+
+@pytest.mark.parametrize(("dist", "speed"), [(2.0, 1.0), (0.2, 1.0), (0.05, 0.5), (0.02, 0.2), (0.0, 0.0)])
+def test_nd_slows_down_within_the_approach_distance(dist, speed):
+    # 0.6 m with refDistance 6 m = 0.1 in TP units
+    out = _nd(_free(), alpha=-0.5, dist=dist, ref_distance_m=6.0)
+    assert out.situation == NDSituation.TARGET_DIRECTLY and out.direction_k == alpha_to_index(-0.5, N)
+    assert out.speed == pytest.approx(speed)
+
+
+def test_nd_speed_options():
+    assert _nd(_free(), dist=0.05, ref_distance_m=6.0, slow_down_near_target=False).speed == 1.0
+    assert _nd(_free(), dist=0.05, ref_distance_m=6.0, max_robot_speed=0.4).speed == pytest.approx(0.2)
+    assert _nd(_free(), dist=0.05).speed == pytest.approx(0.05 / 0.6)  # refDistance 1: 0.6 read as TP units
+
+
+def test_nd_goes_straight_only_when_the_paths_near_the_target_are_free_beyond_it():
+    obs = _blocked(57, 64, 0.5)  # ±3 paths around the target free for 0.5
+    near = _nd(obs, dist=0.45)  # 0.5 >= 1.05 x 0.45
+    assert near.situation == NDSituation.TARGET_DIRECTLY and near.direction_k == AHEAD
+    assert near.speed == pytest.approx(0.45 / 0.6)
+    far = _nd(obs, dist=0.48)  # 0.5 < 1.05 x 0.48: around the obstacle, through the first of two mirror gaps
+    assert far.situation == NDSituation.WIDE_GAP and far.direction_k == 41
+
+
+def test_nd_wall_across_the_target_takes_the_gap():
+    obs = _blocked(80, 96, 1.0, base=0.3)  # a wall at 0.3 everywhere but an opening at paths 80..95
+    out = _nd(obs, dist=2.0)
+    assert out.situation == NDSituation.SMALL_GAP
+    assert [(g.first_k, g.last_k, g.representative_k) for g in out.info.gaps] == [(80, 95, 88)]
+    assert out.direction_k == 88  # the middle of the opening
+    assert out.speed == 1.0  # the opening is free to the horizon
+
+
+def test_nd_target_behind_an_obstacle_goes_around_through_the_nearer_valley():
+    out = _nd(_blocked(45, 71, 0.4), dist=2.0)  # obstacle over paths 45..70, the target at 60 behind it
+    assert out.situation == NDSituation.WIDE_GAP
+    assert [(g.first_k, g.last_k, g.representative_k) for g in out.info.gaps] == [(0, 44, 29), (71, 120, 86)]
+    assert out.direction_k == 86  # left valley (its border is 11 paths from the target, the right one's 16)
+    assert out.speed == 1.0
+    mirrored = _nd(_blocked(45, 71, 0.4)[::-1], dist=2.0)
+    assert mirrored.direction_k == N - 1 - 86
+
+
+def test_nd_symmetric_scene_is_deterministic():
+    obs = _blocked(50, 71, 0.4)  # symmetric about the target path
+    outs = [_nd(obs, dist=2.0) for _ in range(3)]
+    g0, g1 = outs[0].info.gaps
+    assert (g0.representative_k, g1.representative_k) == (34, 86)
+    assert g0.score == pytest.approx(g1.score, abs=1e-12)
+    assert all(o.direction_k == 34 for o in outs)  # tie: the first gap in search order, at negative α
+    assert all(o == outs[0] for o in outs)
+
+
+def test_nd_hysteresis_keeps_the_previous_side_until_reset():
+    slightly_left = _blocked(49, 71, 0.4)  # the left valley is now 1 path nearer the target
+    assert _nd(slightly_left).direction_k == 86
+    nd = HolonomicND()
+    assert _nd(_blocked(50, 71, 0.4), method=nd).direction_k == 34
+    assert _nd(slightly_left, method=nd).direction_k == 33  # within 12 paths of the last choice: +0.4/3.9
+    nd.reset()
+    assert _nd(slightly_left, method=nd).direction_k == 86
+
+
+def test_nd_blocked_all_around_stops():
+    rng = np.random.default_rng(3)
+    out = _nd(0.03 + 0.04 * rng.random(N), dist=2.0)
+    assert out.situation == NDSituation.NO_WAY_FOUND and out.speed == 0.0 and out.info.gaps == ()
+    assert out.direction_k == AHEAD and out.direction_alpha_rad == 0.0
+    assert _nd(np.full(N, 0.1), dist=0.5).speed == 0.0
+
+
+def test_nd_gap_too_close_to_an_obstacle_is_refused():
+    obs = _blocked(80, 90, 0.14, base=0.05)
+    out = _nd(obs, dist=0.1)
+    assert out.situation == NDSituation.NO_WAY_FOUND and out.speed == 0.0
+    assert out.info.gaps == (Gap(80, 89, 85, 0.0),)
+    allowed = _nd(obs, dist=0.1, method=HolonomicND(too_close_obstacle=0.1), slow_down_near_target=False)
+    assert allowed.situation == NDSituation.SMALL_GAP and allowed.direction_k == 85
+    assert allowed.speed == pytest.approx(0.14 / 0.4)  # risk: mean free distance in the gap / 0.4
+
+
+def test_nd_speed_follows_the_free_distance_around_the_choice():
+    out = _nd(_blocked(80, 96, 0.3, base=0.1), dist=0.25, ref_distance_m=10.0)
+    assert out.situation == NDSituation.SMALL_GAP and out.direction_k == 88
+    assert out.info.risk == pytest.approx(0.3) and out.speed == pytest.approx(0.75)
+    direct = _nd(np.full(N, 0.2), dist=0.1, ref_distance_m=10.0)
+    assert direct.situation == NDSituation.TARGET_DIRECTLY and direct.speed == pytest.approx(0.5)
+
+
+def _reference_gaps(obs: np.ndarray, target_dist: float) -> list[tuple[int, int]]:
+    """MRPT's gap estimator written as its plain loops (threshold sweep, then the four sequential filters)."""
+    n = len(obs)
+    top, bottom = max(obs[1:-1]), min(obs[1:-1])
+    cand = []
+    for r in 0.95 - 0.05 * np.arange(18):
+        thr = r * top + (1 - r) * min(target_dist, 0.6)
+        i = 0
+        while i < n:
+            if obs[i] >= thr:
+                j = i
+                while j + 1 < n and obs[j + 1] >= thr:
+                    j += 1
+                if j - i >= math.ceil(0.01 * n):
+                    cand.append((i, j, max(obs[i:j + 1]), min(obs[i], obs[j])))
+                i = j + 1
+            else:
+                i += 1
+    gone = [False] * len(cand)
+    for i, a in enumerate(cand):
+        for j in range(i + 1, len(cand)):
+            if not gone[i] and (a[0] == cand[j][0] or a[1] == cand[j][1]):
+                gone[j] = True
+    for i, a in enumerate(cand):
+        gone[i] = gone[i] or a[2] - a[3] > 0.5 * (top - bottom)
+    inside = [[i != j and b[0] >= a[0] and b[1] <= a[1] for j, b in enumerate(cand)] for i, a in enumerate(cand)]
+    for i in range(len(cand)):
+        if not gone[i] and sum(inside[i][j] and not gone[j] for j in range(len(cand))) > 1:
+            gone[i] = True
+    for i in range(len(cand)):
+        for j in range(len(cand)):
+            if not gone[i] and inside[i][j]:
+                gone[j] = True
+    return [(a[0], a[1]) for a, g in zip(cand, gone) if not g]
+
+
+@pytest.mark.parametrize("n", [121, 31, 100])
+def test_nd_gap_search_matches_the_reference_loops(n):
+    rng = np.random.default_rng(n)
+    k = np.arange(n)
+    for trial in range(60):
+        if trial % 2:
+            obs = rng.random(n)  # jagged
+        else:  # a few smooth valleys, plateaus at 1
+            obs = 0.6 + 0.6 * np.sin(k * rng.uniform(0.05, 0.4) + rng.uniform(0, 6)) + 0.1 * rng.standard_normal(n)
+        obs = np.clip(obs, 0.02, 1.0)
+        dist = float(rng.choice([0.2, 0.5, 2.0]))
+        out = _nd(obs, alpha=float(rng.uniform(-math.pi, math.pi)), dist=dist)
+        assert [(g.first_k, g.last_k) for g in out.info.gaps] == _reference_gaps(obs, dist)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# VFF
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_vff_free_space_heads_straight_at_the_target():
+    out = _vff(_free(), alpha=0.3, dist=2.0)
+    assert out.direction_alpha_rad == pytest.approx(0.3, abs=1e-12) and out.direction_k == 66
+    assert out.speed == 1.0 and out.situation == "FORCE_FIELD"
+
+
+@pytest.mark.parametrize(("dist", "ref_m", "speed"), [(0.05, 1.0, 0.5), (0.01, 6.0, 0.6), (0.02, 6.0, 1.0)])
+def test_vff_slows_down_within_the_approach_distance(dist, ref_m, speed):
+    assert _vff(_free(), dist=dist, ref_distance_m=ref_m).speed == pytest.approx(speed)  # 0.1 m / refDistance
+
+
+def test_vff_single_obstacle_force():
+    obs = _free()
+    obs[90] = 0.5  # one path at 0.5: the rest cancel out, this one pushes 20/N x (1/0.5 - 1) away from it
+    out = _vff(obs, dist=2.0)
+    a = index_to_alpha(90, N)
+    push = -(20 / N) * np.array([math.cos(a), math.sin(a)])
+    np.testing.assert_allclose(out.info.repulsive_force, push, atol=1e-12)
+    assert out.direction_alpha_rad == pytest.approx(math.atan2(push[1], 20 + push[0]), abs=1e-12)
+    assert out.speed == 1.0  # |push| = 0.165 < 6
+
+
+def test_vff_obstacle_on_one_side_pushes_to_the_other_and_slows_down():
+    out = _vff(_blocked(60, 91, 0.1), dist=2.0)  # close obstacle ahead-left
+    assert out.direction_alpha_rad < -math.pi / 4 and out.direction_k < 45
+    assert 0.1 < out.speed < 0.2 and out.speed == pytest.approx(out.info.obstacle_nearness)
+    unslowed = _vff(_blocked(60, 91, 0.1), dist=2.0, slow_down_near_target=False)
+    assert unslowed.speed == out.speed  # MRPT would return 0 here (upstream bug)
+
+
+def test_vff_blocked_ahead_very_close_nearly_stops():
+    out = _vff(_blocked(30, 91, 0.05), dist=2.0)  # the whole front half at 0.05
+    assert out.speed < 0.05
+    assert abs(out.direction_alpha_rad) > 3 * math.pi / 4  # pushed backwards
+    assert _vff(_blocked(30, 91, 0.0), dist=2.0).speed < 1e-4  # 1/0 capped at 1e6: finite, ~0
+
+
+def test_vff_uniform_obstacles_cancel_out():
+    # MRPT's VFF only sees the resultant: the navigator's safety ramp must stop the robot here.
+    out = _vff(np.full(N, 0.05), alpha=0.2, dist=2.0)
+    assert out.speed == 1.0 and out.direction_alpha_rad == pytest.approx(0.2, abs=1e-12)
+
+
+def test_vff_target_behind_an_obstacle_deflects_to_the_open_side():
+    out = _vff(_blocked(45, 71, 0.3), dist=2.0)  # the obstacle reaches further right than left
+    assert 0.05 < out.direction_alpha_rad < math.pi / 4 and out.direction_k == 62
+    assert out.speed == pytest.approx(6 / math.hypot(*out.info.repulsive_force))
+
+
+def test_vff_symmetric_scene_is_deterministic():
+    outs = [_vff(_blocked(50, 71, 0.3), dist=2.0) for _ in range(3)]
+    assert outs[0].direction_k == AHEAD and abs(outs[0].direction_alpha_rad) < 1e-12
+    assert all(o == outs[0] for o in outs)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Interface, factory, cost
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_factory_defaults_are_mrpts():
+    nd, vff = make_holonomic(), make_holonomic("VFF")
+    assert isinstance(nd, HolonomicND) and isinstance(vff, HolonomicVFF)
+    assert isinstance(nd, HolonomicMethod) and isinstance(vff, HolonomicMethod)
+    assert nd.config == NDConfig(0.25, 0.25, 0.10, 0.4, 0.15, 0.60, (1.0, 0.5, 2.0, 0.4))
+    assert vff.config == VFFConfig(0.10, 20.0)
+
+
+def test_factory_options_and_errors():
+    nd = make_holonomic("nd", TOO_CLOSE_OBSTACLE=0.1, factorWeights=[1, 1, 1, 1], wide_gap_size_percent=0.2)
+    assert (nd.config.too_close_obstacle, nd.config.factor_weights) == (0.1, (1.0, 1.0, 1.0, 1.0))
+    assert nd.config.wide_gap_size_percent == 0.2
+    vff = make_holonomic("vff", TARGET_SLOW_APPROACHING_DISTANCE=0.3)
+    assert vff.config.target_slow_approaching_distance_m == 0.3
+    with pytest.raises(UnknownNameError, match="available: nd, vff"):
+        make_holonomic("fulleval")
+    with pytest.raises(KeyError):
+        make_holonomic("fulleval")
+    with pytest.raises(ConfigError, match="unknown ND option 'bogus'"):
+        make_holonomic("nd", bogus=1)
+    with pytest.raises(ConfigError, match="factor_weights"):
+        make_holonomic("nd", factor_weights=(1, 2))
+
+
+def test_input_is_validated_and_copied():
+    obs = _free()
+    inp = HolonomicInput(obs, 0.0, 1.0)
+    obs[:] = 0.0
+    assert inp.obstacles[0] == 1.0 and not inp.obstacles.flags.writeable
+    assert inp.num_paths == N and inp.target_k == AHEAD
+    via_k = HolonomicInput.toward_path(obs, 37, 0.5, ref_distance_m=6.0)
+    assert via_k.target_k == 37 and via_k.target_alpha_rad == index_to_alpha(37, N) and via_k.ref_distance_m == 6.0
+    with pytest.raises(ValueError):
+        HolonomicInput.toward_path(obs, N, 0.5)
+    for bad in (np.ones((2, N)), np.ones(2), np.r_[np.nan, np.ones(5)], -np.ones(5)):
+        with pytest.raises(ValueError):
+            HolonomicInput(bad, 0.0, 1.0)
+    with pytest.raises(ValueError):
+        HolonomicInput(obs, 0.0, -1.0)
+    with pytest.raises(ValueError):
+        HolonomicInput(obs, math.inf, 1.0)
+
+
+def test_a_call_takes_well_under_a_millisecond():
+    rng = np.random.default_rng(0)
+    inputs = [HolonomicInput(np.clip(rng.random(N) + 0.3, 0, 1), rng.uniform(-3, 3), 2.0) for _ in range(50)]
+    for method in (HolonomicND(), HolonomicVFF()):
+        start = time.perf_counter()
+        for _ in range(4):
+            for inp in inputs:
+                method.navigate(inp)
+        assert (time.perf_counter() - start) / 200 < 2e-3  # measured ~0.2 ms (ND), ~0.015 ms (VFF); loose for CI

@@ -1,0 +1,172 @@
+"""The 3D-PTG navigator in closed loop with a kinematic unicycle (no simulator): behaviour of §6.C."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simnav.geometry import se2
+from simnav.navigation.bands import Band, sort_into_bands
+from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
+from simnav.navigation.ptgspace import PTGSpace
+
+BASE = Band("base", 0.0, 0.5, np.array([[0.3, -0.3], [0.3, 0.3], [-0.3, 0.3], [-0.3, -0.3]]))
+MAST = Band("mast", 0.5, 1.0, np.array([[0.05, -0.1], [0.05, 0.1], [-0.05, 0.1], [-0.05, -0.1]]))
+V_MAX, W_MAX = 0.6, math.radians(90)
+CONFIG = NavigatorConfig(num_paths=61, ref_distance_m=3.0, memory=False)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory) -> str:
+    return str(tmp_path_factory.mktemp("ptg-cache"))
+
+
+def make_nav(cache_dir: str, bands=(BASE, MAST), **overrides) -> ReactiveNavigator3D:
+    cfg = NavigatorConfig(**{**CONFIG.__dict__, **overrides})
+    return ReactiveNavigator3D(list(bands), V_MAX, W_MAX, max_acc_m_s2=1.0, max_ang_acc_rad_s2=3.0, config=cfg,
+                               cache_dir=cache_dir)
+
+
+def drive(nav: ReactiveNavigator3D, obstacles_world: np.ndarray, target_xy, seconds: float,
+          start=(0.0, 0.0, 0.0), dt: float = 0.05):
+    """Closed loop: points in the world, a unicycle that executes the commands exactly. Returns poses and commands."""
+    nav.set_target(target_xy)
+    T = se2.from_xy_yaw(*start)
+    poses, commands = [T], []
+    for k in range(int(seconds / dt)):
+        T_base_world = se2.inverse(T)
+        pts = np.column_stack([se2.transform_points(T_base_world, obstacles_world[:, :2]), obstacles_world[:, 2]]) \
+            if len(obstacles_world) else np.zeros((0, 3))
+        cmd = nav.step(k * dt, T, pts)
+        commands.append(cmd)
+        if cmd.state == "reached":
+            break
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+        poses.append(T)
+    return np.array(poses), commands
+
+
+def wall(x0, y0, x1, y1, z=0.2, step=0.04) -> np.ndarray:
+    n = int(math.hypot(x1 - x0, y1 - y0) / step) + 1
+    return np.column_stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n), np.full(n, z)])
+
+
+def footprint_distance(poses: np.ndarray, points_xy: np.ndarray, polygon: np.ndarray) -> float:
+    """Smallest distance between the robot polygon (at every pose) and the points."""
+    from shapely.geometry import MultiPoint, Polygon
+
+    cloud = MultiPoint(points_xy.tolist())
+    return min(Polygon(se2.transform_points(T, polygon)).distance(cloud) for T in poses)
+
+
+def test_empty_world_goes_straight_to_the_target(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    poses, commands = drive(nav, np.zeros((0, 3)), (3.0, 0.0), 20.0)
+    assert commands[-1].state == "reached"
+    assert np.max(np.abs(poses[:, 1, 2])) < 0.02                     # no sideways detour
+    assert max(abs(c.w_rad_s) for c in commands) < 0.05
+    assert max(c.v_m_s for c in commands) == pytest.approx(V_MAX, rel=0.05)
+    assert np.linalg.norm(poses[-1][:2, 2] - [3.0, 0.0]) <= CONFIG.target_allowed_distance_m + 0.05
+    # it slows down on the approach
+    assert commands[-2].v_m_s < 0.5 * V_MAX
+
+
+def test_a_wall_across_the_way_stops_the_robot_before_it(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    obstacles = wall(2.0, -30.0, 2.0, 30.0)
+    # the goal lies just behind the wall: the robot could not stand there
+    poses, commands = drive(nav, obstacles, (2.2, 0.0), 15.0)
+    assert commands[-1].state == "blocked"
+    assert abs(commands[-1].v_m_s) < 0.01
+    assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
+    assert np.max(poses[:, 0, 2]) < 2.0 - 0.3
+    assert np.max(np.abs(poses[:, 1, 2])) < 0.3       # it came at it and stopped, no search along the wall
+
+
+def test_a_goal_beyond_a_long_wall_is_searched_for_without_touching_the_wall(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    obstacles = wall(2.0, -30.0, 2.0, 30.0)
+    poses, commands = drive(nav, obstacles, (5.0, 0.0), 20.0)
+    assert commands[-1].state != "reached"
+    assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
+
+
+def test_an_obstacle_inside_the_footprint_makes_the_robot_back_away(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    nav.set_target((3.0, 0.0))
+    cmd = nav.step(0.0, np.eye(3), np.array([[0.2, 0.0, 0.2]]))
+    for k in range(1, 5):
+        cmd = nav.step(0.05 * k, np.eye(3), np.array([[0.2, 0.0, 0.2]]))
+    assert cmd.state == "recovering"
+    assert cmd.v_m_s < 0.0
+
+
+def test_a_point_above_the_low_band_only_blocks_the_band_it_is_in(cache_dir) -> None:
+    space = PTGSpace("C", [BASE, MAST], V_MAX, W_MAX, 61, 3.0, 0.05, cache_dir)
+    k0 = space.num_paths // 2  # the straight path
+    # beside the mast, above the base: the base passes under it, the mast passes beside it
+    above = sort_into_bands(np.array([[1.0, 0.2, 0.7]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
+    assert space.tp_limits(above)[k0] == pytest.approx(1.0)
+    # the same (x, y) at base height blocks the straight path where the base front reaches it
+    low = sort_into_bands(np.array([[1.0, 0.2, 0.3]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
+    assert space.tp_limits(low)[k0] * 3.0 == pytest.approx(0.7, abs=0.08)
+    # in front of the mast, it blocks the straight path where the mast front reaches it
+    mast = sort_into_bands(np.array([[1.0, 0.0, 0.7]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
+    assert space.tp_limits(mast)[k0] * 3.0 == pytest.approx(0.95, abs=0.08)
+
+
+def _long_table() -> np.ndarray:
+    """A 10 m long table 0.8 m deep: top at 1.1 m (above the 1.0 m robot), legs every 1.5 m."""
+    xs, ys = np.meshgrid(np.arange(1.5, 2.31, 0.05), np.arange(-5.0, 5.01, 0.05))
+    top = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.1)])
+    legs = [wall(x, y, x, y + 0.04, z=z) for x in (1.55, 2.25) for y in np.arange(-4.5, 4.6, 1.5)
+            for z in (0.2, 0.6, 1.0)]
+    return np.concatenate([top, *legs])
+
+
+def test_a_table_the_robot_fits_under_is_passable_in_3d_and_blocked_in_2d(cache_dir) -> None:
+    from simnav.navigation.bands import planar_bands
+    from simnav.robot.spec import Prism, RobotSpec
+
+    table = _long_table()
+    nav3d = make_nav(cache_dir)
+    poses, commands = drive(nav3d, table, (4.0, 0.0), 30.0)
+    assert commands[-1].state == "reached"
+    spec = RobotSpec(prisms=[Prism(name=b.name, z_min_m=b.z_min_m, z_max_m=b.z_max_m, polygon=b.polygon.tolist())
+                             for b in (BASE, MAST)])
+    nav2d = make_nav(cache_dir, bands=planar_bands(spec))
+    poses, commands = drive(nav2d, table, (4.0, 0.0), 30.0)
+    assert commands[-1].state != "reached"
+    assert np.max(poses[:, 0, 2]) < 1.5
+
+
+def test_waypoints_are_passed_without_stopping(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[2.0, 0.0], [2.0, 2.0], [4.0, 2.0]]))
+    T, speeds = np.eye(3), []
+    for k in range(600):
+        cmd = nav.step(0.05 * k, T, np.zeros((0, 3)))
+        if cmd.state == "reached":
+            break
+        speeds.append(cmd.v_m_s)
+        T = T @ se2.exp([cmd.v_m_s * 0.05, 0.0, cmd.w_rad_s * 0.05])
+    assert cmd.state == "reached"
+    assert min(speeds[20:-20]) > 0.2 * V_MAX   # never stops at the intermediate waypoints
+
+
+def test_stuck_is_reported_after_the_timeout(cache_dir) -> None:
+    nav = make_nav(cache_dir, stuck_timeout_s=2.0)
+    obstacles = wall(0.6, -30.0, 0.6, 30.0)
+    _, commands = drive(nav, obstacles, (5.0, 0.0), 4.0)
+    assert not commands[10].stuck
+    assert commands[-1].stuck
+
+
+def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
+    with pytest.raises(ValueError, match="secure_distance"):
+        NavigatorConfig(secure_distance_start=0.5, secure_distance_end=0.2)
+    nav = make_nav(cache_dir)
+    with pytest.raises(ValueError, match="waypoints"):
+        nav.set_waypoints(np.array([[np.nan, 0.0]]))
