@@ -35,7 +35,7 @@ from simnav.navigation.sensing import SensedObstacles
 from simnav.robot.spec import RobotSpec
 from simnav.sim import SimConfig, Simulator
 from simnav.sim.robot import SimRobot
-from simnav.world.footprint import obstacle_union
+from simnav.world.footprint import clearance_m, obstacle_union
 from simnav.world.schema import WorldSpec
 
 INCIDENT_MERGE_S = 1.0
@@ -43,6 +43,12 @@ INCIDENT_MERGE_S = 1.0
 
 CLEARANCE_PERIOD_S = 0.2
 """The robot's clearance to static obstacles is measured at this period, s."""
+
+NARROW_NODE_CLEARANCE_M = 0.75
+"""Roadmap nodes closer than this to a static obstacle (doorways) are passed through, not skipped, m."""
+
+NARROW_NODE_TOLERANCE_M = 0.3
+"""... within this distance, m."""
 
 
 class MissionSettings(FrozenModel):
@@ -187,6 +193,9 @@ class _MissionRunner:
         self.rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 7]))
         self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,
                                     settings.pose_source, self.sim.pedestrian_count)
+        nodes = self.sim.roadmap.nodes_xy
+        self._narrow = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms)) \
+            < NARROW_NODE_CLEARANCE_M
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
@@ -263,8 +272,15 @@ class _MissionRunner:
                                              float(target[1]), start_s=self.sim.time_s, shortest_m=shortest))
         self.report.targets_requested += 1
         self._target_start_s, self._target_start_distance = self.sim.time_s, self.report.distance_m
-        self.nav.set_waypoints(graph.nodes_xy[route])
+        self._follow(route)
         return route
+
+    def _follow(self, route: list[int]) -> None:
+        """Hand a roadmap route to the navigator; narrow nodes (doorways) must be passed through."""
+        narrow = self._narrow[route]
+        self.nav.set_waypoints(self.sim.roadmap.nodes_xy[route], allow_skip=~narrow,
+                               allowed_distance_m=np.where(narrow, NARROW_NODE_TOLERANCE_M,
+                                                           self.nav.config.waypoint_allowed_distance_m))
 
     def _close_target(self, row, reached: bool) -> None:
         row.reached = reached
@@ -293,7 +309,7 @@ class _MissionRunner:
         self.pose.anchor(self.sim.time_s, self._true_pose())
         self.obstacles.reset()
         self._last_xy = None
-        self.nav.set_waypoints(graph.nodes_xy[remaining])
+        self._follow(remaining)
         return remaining
 
     # ----------------------------------------------------------------------------------------- measurements

@@ -3,8 +3,8 @@
 A :class:`Band` is one prism: a base-frame polygon extruded between two heights. Obstacle points from every range
 sensor, expressed in the base frame (x forward, y left, z up, metres), go to the band whose height interval holds
 them; points on the floor, above the robot or in a height gap between prisms touch no part of the robot and are
-dropped. Each band keeps one point per grid cell of its (x, y) plane, which keeps every obstacle the collision
-grid can tell apart and bounds the work per step.
+dropped. (The navigator then keeps one point per collision-grid cell of each band: the most restrictive points,
+as §6.C.6 downsamples the fused cloud.)
 
 The 2D variant (``planar_bands``) models the robot by one prism, the convex hull of all its sections, and projects
 every point above the floor onto it, whatever its height: the classic 2D navigator that §6.C compares against.
@@ -80,14 +80,13 @@ def planar_bands(robot: RobotSpec) -> list[Band]:
     return [Band("planar", 0.0, math.inf, hull)]
 
 
-def sort_into_bands(points_base: np.ndarray, bands: Sequence[Band], *, cell_m: float, max_xy_m: float,
+def sort_into_bands(points_base: np.ndarray, bands: Sequence[Band], *, max_xy_m: float,
                     floor_m: float = FLOOR_TOLERANCE_M) -> list[np.ndarray]:
-    """Sort 3D obstacle points into the bands' height intervals, one point per (x, y) cell.
+    """Sort 3D obstacle points into the bands' height intervals.
 
     Args:
         points_base: (P, 3) obstacle points in the base frame, m; NaN/inf rows are ignored.
         bands: the robot's bands.
-        cell_m: (x, y) cell size of the per-band reduction, m (the collision grid's resolution).
         max_xy_m: points with |x| or |y| beyond this are ignored (outside every collision grid), m.
         floor_m: points below this height are the floor, m.
 
@@ -104,16 +103,5 @@ def sort_into_bands(points_base: np.ndarray, bands: Sequence[Band], *, cell_m: f
     for band in bands:
         # A point belongs to the band that holds its height
         z = pts[:, 2]
-        xy = pts[(z >= band.z_min_m) & (z < band.z_max_m), :2]
-        out.append(_one_per_cell(xy, cell_m))
+        out.append(pts[(z >= band.z_min_m) & (z < band.z_max_m), :2])
     return out
-
-
-def _one_per_cell(xy: np.ndarray, cell_m: float) -> np.ndarray:
-    """(Q, 2) the first point of every occupied ``cell_m`` cell of (P, 2) ``xy``."""
-    if len(xy) == 0:
-        return xy.reshape(0, 2)
-    cells = np.floor(xy / cell_m).astype(np.int64)
-    key = (cells[:, 0] << 32) + cells[:, 1]  # one integer per cell (|cell index| < 2^31)
-    _, first = np.unique(key, return_index=True)
-    return xy[np.sort(first)]

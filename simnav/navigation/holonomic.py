@@ -12,7 +12,14 @@ k = (N-1)/2 has α = 0 exactly. An angle maps back to ``k = round(½(N(1 + α/π
 after wrapping α to (-π, π], clamped to [0, N-1]. ND's gap search runs along the array (a valley that wraps
 across ±π is seen as two), as MRPT's does.
 
-The methods import only numpy and know nothing about PTGs: all inputs are plain arrays and numbers.
+The methods import only numpy and numba and know nothing about PTGs: all inputs are plain arrays and numbers.
+
+Runtime: the navigator runs a method once per PTG and step, within a 1 ms step budget. ND's gap search, filters,
+scoring and risk run in one Numba kernel (``@njit(cache=True)``: compiled on first use, then loaded from
+``__pycache__``), about 0.01 ms a call for N = 121 against ~0.25 ms written with numpy; its results are bit-identical
+to the numpy formulation (same operations in the same order; ``exp`` and ``cos``/``sin`` come from numpy-built tables,
+the risk mean from numpy's pairwise summation). ``NDInfo.gaps`` is built on first access. VFF stays in numpy (its
+two dot products are BLAS's, whose summation order a kernel would not reproduce) with the scalar work in Python.
 """
 
 from __future__ import annotations
@@ -20,9 +27,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
+from functools import cached_property
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
+from numba import njit
 
 from simnav.errors import ConfigError, UnknownNameError
 
@@ -74,9 +83,25 @@ def alpha_to_index(alpha_rad: float | np.ndarray, num_paths: int) -> int | np.nd
     return int(k) if k.ndim == 0 else k
 
 
-def _c_round(x: float) -> int:
-    """C's ``round`` for x >= 0 (halves go up), unlike Python's banker's rounding."""
-    return math.floor(x + 0.5)
+def _path_alpha(k: int, num_paths: int) -> float:
+    """:func:`index_to_alpha` of one path, in plain floats (the same operations, so the same bits)."""
+    return math.pi * (2 * k + 1 - num_paths) / num_paths
+
+
+def _path_index(alpha_rad: float, num_paths: int) -> int:
+    """:func:`alpha_to_index` of one angle, in plain floats (the same operations, so the same index)."""
+    wrapped = alpha_rad - 2.0 * math.pi * math.ceil((alpha_rad - math.pi) / (2.0 * math.pi))
+    k = math.floor(0.5 * (num_paths * (1.0 + wrapped / math.pi) - 1.0) + 0.5)
+    return min(max(k, 0), num_paths - 1)
+
+
+@njit(cache=True)
+def _obstacles_valid(obs: np.ndarray) -> bool:
+    """All TP-obstacles finite and >= 0 (NaN fails), in one pass."""
+    for v in obs:
+        if not 0.0 <= v < math.inf:
+            return False
+    return True
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -111,10 +136,10 @@ class HolonomicInput:
     slow_down_near_target: bool = True
 
     def __post_init__(self) -> None:
-        obs = np.array(self.obstacles, dtype=float)
+        obs = np.array(self.obstacles, dtype=np.float64, order="C")  # a copy (the caller may reuse its array)
         if obs.ndim != 1 or obs.size < 3:
             raise ValueError(f"obstacles must have shape (N,) with N >= 3, got {obs.shape}")
-        if not (np.isfinite(obs).all() and (obs >= 0).all()):
+        if not _obstacles_valid(obs):
             raise ValueError("obstacles must be finite and >= 0")
         obs.flags.writeable = False
         object.__setattr__(self, "obstacles", obs)
@@ -122,9 +147,10 @@ class HolonomicInput:
             raise ValueError(f"target_alpha_rad must be finite, got {self.target_alpha_rad}")
         if not (math.isfinite(self.target_dist) and self.target_dist >= 0):
             raise ValueError(f"target_dist must be finite and >= 0, got {self.target_dist}")
-        for name in ("max_obstacle_dist", "ref_distance_m"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)}")
+        if not (math.isfinite(self.max_obstacle_dist) and self.max_obstacle_dist > 0):
+            raise ValueError(f"max_obstacle_dist must be finite and > 0, got {self.max_obstacle_dist}")
+        if not (math.isfinite(self.ref_distance_m) and self.ref_distance_m > 0):
+            raise ValueError(f"ref_distance_m must be finite and > 0, got {self.ref_distance_m}")
         if not (math.isfinite(self.max_robot_speed) and self.max_robot_speed >= 0):
             raise ValueError(f"max_robot_speed must be finite and >= 0, got {self.max_robot_speed}")
 
@@ -132,20 +158,23 @@ class HolonomicInput:
     def toward_path(cls, obstacles: np.ndarray, target_k: int, target_dist: float, **options) -> HolonomicInput:
         """The input for a target given by its path index (as a PTG's inverse map returns it): the target
         direction is ``α_{target_k}``; ``options`` are the other fields."""
-        n = np.shape(obstacles)[0] if np.ndim(obstacles) else 0
+        if isinstance(obstacles, np.ndarray):
+            n = obstacles.shape[0] if obstacles.ndim else 0
+        else:
+            n = np.shape(obstacles)[0] if np.ndim(obstacles) else 0
         if not 0 <= target_k < n:
             raise ValueError(f"target_k must be in [0, {n - 1}], got {target_k}")
-        return cls(obstacles, index_to_alpha(int(target_k), n), target_dist, **options)
+        return cls(obstacles, _path_alpha(int(target_k), n), target_dist, **options)
 
     @property
     def num_paths(self) -> int:
         """N, the number of TP directions."""
         return self.obstacles.size
 
-    @property
+    @cached_property
     def target_k(self) -> int:
         """Index of the path nearest to the target direction."""
-        return alpha_to_index(self.target_alpha_rad, self.num_paths)
+        return _path_index(float(self.target_alpha_rad), self.obstacles.size)
 
     def target_nearness(self, slow_approaching_distance_m: float) -> float:
         """Speed factor min(1, d_target / (slow distance / refDistance)); 1 when slowing down is disabled."""
@@ -202,6 +231,37 @@ class NDInfo:
     gaps: tuple[Gap, ...]
     evaluation: float
     risk: float
+
+
+class _LazyNDInfo(NDInfo):
+    """The :class:`NDInfo` that :meth:`HolonomicND.navigate` returns: ``gaps`` may be given as the kernel's (g, 4)
+    array of (first_k, last_k, representative_k, score) rows, turned into :class:`Gap` records on first access
+    (the navigator never reads them). Compares and hashes as an :class:`NDInfo` with the same fields."""
+
+    def __init__(self, situation: NDSituation, target_k: int, gaps: np.ndarray | tuple[Gap, ...], evaluation: float,
+                 risk: float) -> None:
+        attrs = self.__dict__  # frozen: set the fields directly
+        attrs["situation"], attrs["target_k"] = situation, target_k
+        attrs["evaluation"], attrs["risk"] = evaluation, risk
+        attrs["_gap_table" if isinstance(gaps, np.ndarray) else "_gaps"] = gaps
+
+    @property
+    def gaps(self) -> tuple[Gap, ...]:  # type: ignore[override]
+        attrs = self.__dict__
+        if "_gaps" not in attrs:
+            attrs["_gaps"] = tuple(Gap(int(a), int(b), int(r), s) for a, b, r, s in attrs["_gap_table"].tolist())
+        return attrs["_gaps"]
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, NDInfo):
+            return NotImplemented
+        return ((self.situation, self.target_k, self.gaps, self.evaluation, self.risk)
+                == (other.situation, other.target_k, other.gaps, other.evaluation, other.risk))
+
+    __hash__ = NDInfo.__hash__
+
+    def __repr__(self) -> str:
+        return "NDInfo" + super().__repr__().removeprefix(type(self).__qualname__)
 
 
 @dataclass(frozen=True)
@@ -278,9 +338,7 @@ def _require(ok: bool, message: str) -> None:
 # Nearness Diagram
 # ----------------------------------------------------------------------------------------------------------------
 
-_GAP_THRESHOLD_RATIOS = 0.95 - 0.05 * np.arange(18)
-"""Threshold ratios of the gap sweep, 0.95 down to 0.10: MRPT's loop is meant to reach 0.05 but floating-point
-accumulation (0.95 - 18 x 0.05 < 0.05) stops it at 0.10; we keep what MRPT runs."""
+_GAP_THRESHOLD_COUNT = 18  # threshold ratios of the gap sweep: 0.95 - 0.05 t, t = 0..17 (see _nd_gaps)
 _GAP_MIN_WIDTH_PERCENT = 0.01  # a gap spans at least ceil(1% N) sectors (end - ini)
 _GAP_MIN_DEPTH_CONSIDERED = 0.6  # thresholds sweep down to min(d_target, this)
 _GAP_MAX_RELATIVE_DEPTH = 0.5  # drop gaps whose depth variation exceeds this fraction of the array's
@@ -336,19 +394,6 @@ class NDConfig:
         _require(self.too_close_obstacle >= 0, f"ND too_close_obstacle must be >= 0, got {self.too_close_obstacle}")
 
 
-@dataclass(frozen=True)
-class _Gaps:
-    """Gap arrays, one entry per gap: first/last path (inclusive) and max TP-obstacle / min at the borders."""
-
-    ini: np.ndarray
-    end: np.ndarray
-    max_d: np.ndarray
-    min_d: np.ndarray
-
-    def take(self, idx: np.ndarray) -> _Gaps:
-        return _Gaps(self.ini[idx], self.end[idx], self.max_d[idx], self.min_d[idx])
-
-
 class HolonomicND:
     """Nearness Diagram navigation in TP-space (Minguez & Montano 2004, as MRPT's ``CHolonomicND``).
 
@@ -367,6 +412,9 @@ class HolonomicND:
     placeholder, and then favours gaps near -π); the NO_WAY_FOUND direction is path ``alpha_to_index(0)``
     rather than the raw angle 0; a gap's maximum includes its last path when the gap reaches the array end.
 
+    Steps 1-3 and the risk of step 4 run in the compiled :func:`_nd_kernel`; the returned ``info`` builds its
+    :class:`Gap` records on first access.
+
     Args:
         **config: overrides of :class:`NDConfig` fields (snake_case or MRPT ini names); an unknown name raises
             :class:`simnav.errors.ConfigError`.
@@ -376,6 +424,8 @@ class HolonomicND:
 
     def __init__(self, **config) -> None:
         self.config: NDConfig = _make_config(NDConfig, config, "ND")
+        self._params_config: NDConfig | None = None  # the config that _params was built from
+        self._params = np.empty(0)
         self.reset()
 
     def reset(self) -> None:
@@ -384,171 +434,279 @@ class HolonomicND:
 
     def navigate(self, inp: HolonomicInput) -> HolonomicOutput:
         """Choose a path and speed (see the class doc)."""
-        obs, n, cfg = inp.obstacles, inp.num_paths, self.config
+        cfg = self.config
+        if cfg is not self._params_config:  # the kernel's view of the config, rebuilt if it was replaced
+            w = cfg.factor_weights
+            self._params = np.array([cfg.wide_gap_size_percent, cfg.risk_evaluation_sectors_percent,
+                                     cfg.too_close_obstacle, *w, sum(w)])
+            self._params_config = cfg
+        obs = inp.obstacles
+        n = obs.size
         target_k = inp.target_k
-        target_dist = max(_MIN_TARGET_DIST, inp.target_dist)
-        wide = _c_round(cfg.wide_gap_size_percent * n)
-        gaps = _find_gaps(obs, inp.target_dist)
-        rep = _representative_paths(gaps, target_k, n, wide)
-        scores = _score_gaps(obs, gaps, rep, target_k, target_dist, inp.max_obstacle_dist, self._last_k, cfg)
-        lo, hi = 0, n - 1
-        if _target_directly(obs, target_k, target_dist, inp.max_obstacle_dist):
-            situation, k = NDSituation.TARGET_DIRECTLY, target_k
-            evaluation = 1.0 + max(0.0, (inp.max_obstacle_dist - target_dist) / inp.max_obstacle_dist)
-        elif scores.size == 0 or scores.max() <= 0:
-            situation, k, evaluation = NDSituation.NO_WAY_FOUND, alpha_to_index(0.0, n), 0.0
-        else:
-            best = int(np.flatnonzero(scores >= scores.max() - _SCORE_TIE)[0])  # the first of tied gaps
-            lo, hi, k, evaluation = int(gaps.ini[best]), int(gaps.end[best]), int(rep[best]), float(scores[best])
-            situation = NDSituation.SMALL_GAP if hi - lo < wide else NDSituation.WIDE_GAP
-        risk = _risk(obs, k, lo, hi, _c_round(cfg.risk_evaluation_sectors_percent * n))
-        if situation is NDSituation.NO_WAY_FOUND:
+        last_k = self._last_k
+        gap_table = np.empty((n, 4))
+        code, k, evaluation, risk, g = _nd_kernel(obs, target_k, inp.target_dist, inp.max_obstacle_dist,
+                                                  -1 if last_k is None else last_k, self._params, _direction_tables(n),
+                                                  gap_table)
+        if code == _ND_NO_WAY_FOUND:
             speed = 0.0
+            self._last_k = None
         else:
             risk_factor = min(1.0, risk / cfg.risk_evaluation_distance)
             speed = inp.max_robot_speed * min(risk_factor, inp.target_nearness(cfg.target_slow_approaching_distance_m))
-        self._last_k = None if situation is NDSituation.NO_WAY_FOUND else k
-        info = NDInfo(situation, target_k, _gap_records(gaps, rep, scores), evaluation, risk)
-        return HolonomicOutput(k, index_to_alpha(k, n), speed, situation.value, info)
+            self._last_k = k
+        situation = _ND_SITUATIONS[code]
+        info = _LazyNDInfo(situation, target_k, gap_table[:g], evaluation, risk)
+        return HolonomicOutput(k, _path_alpha(k, n), speed, _ND_SITUATION_NAMES[code], info)
 
 
-def _find_gaps(obs: np.ndarray, target_dist: float) -> _Gaps:
-    """The gaps that survive MRPT's filters, in search order (threshold ratio 0.95 first, then by index)."""
+_ND_SITUATIONS = (NDSituation.TARGET_DIRECTLY, NDSituation.SMALL_GAP, NDSituation.WIDE_GAP, NDSituation.NO_WAY_FOUND)
+"""The situations by the kernel's code."""
+_ND_SITUATION_NAMES = tuple(s.value for s in _ND_SITUATIONS)
+_ND_TARGET_DIRECTLY, _ND_SMALL_GAP, _ND_WIDE_GAP, _ND_NO_WAY_FOUND = range(4)
+
+_DIRECTION_TABLES: dict[int, np.ndarray] = {}
+
+
+def _direction_tables(n: int) -> np.ndarray:
+    """(3, N) per-N tables, cached: cos α_k, sin α_k and ND's angular factor ``exp(-(d / (N/4))²)`` for a circular
+    distance of d paths, all computed with numpy (whose ``exp`` may differ from libm's by an ulp)."""
+    tables = _DIRECTION_TABLES.get(n)
+    if tables is None:
+        k = np.arange(n)
+        alpha = index_to_alpha(k, n)
+        tables = np.ascontiguousarray(np.stack([np.cos(alpha), np.sin(alpha), np.exp(-np.square(k / (0.25 * n)))]))
+        tables.flags.writeable = False
+        _DIRECTION_TABLES[n] = tables
+    return tables
+
+
+@njit(cache=True)
+def _nd_kernel(obs: np.ndarray, target_k: int, target_dist: float, max_obs: float, last_k: int, params: np.ndarray,
+               tables: np.ndarray, gaps: np.ndarray) -> tuple[int, int, float, float, int]:
+    """Compiled ND decision (steps 1-3 of :class:`HolonomicND` and the risk).
+
+    Args:
+        obs: (N,) TP-obstacles.
+        target_k: path of the target.
+        target_dist: normalised target distance, as given (the gap sweep reads it unclamped).
+        max_obs: the "free" level.
+        last_k: the last chosen path, -1 for none.
+        params: wide-gap percent, risk-sectors percent, too-close distance, the 4 factor weights, their sum.
+        tables: :func:`_direction_tables` of N.
+        gaps: (N, 4) output: its first g rows get (first_k, last_k, representative_k, score) of the surviving
+            gaps in search order.
+
+    Returns:
+        ``(situation code, chosen path, evaluation, risk, g)``.
+    """
     n = obs.size
-    interior = obs[1:-1]  # MRPT leaves out the two end paths when measuring the array's range
-    top, bottom = float(interior.max()), float(interior.min())
-    candidates = _candidate_gaps(obs, top, target_dist, math.ceil(_GAP_MIN_WIDTH_PERCENT * n))
-    keep = _filter_gaps(candidates, top - bottom)
-    return candidates.take(np.flatnonzero(keep))
+    wide = int(math.floor(params[0] * n + 0.5))
+    td = max(_MIN_TARGET_DIST, target_dist)
+    scratch = np.empty(5 * n, np.int64)
+    g = _nd_gaps(obs, target_dist, scratch)
+    ini, end = scratch[:n], scratch[n:2 * n]
+    # Scores: weighted mean of the four factors (see _nd_score)
+    cumsum = np.empty(n + 1)  # as numpy's: cumsum[i + 1] = cumsum[i] + obs[i], cumsum[1] = obs[0]
+    cumsum[0], cumsum[1] = 0.0, obs[0]
+    for i in range(1, n):
+        cumsum[i + 1] = cumsum[i] + obs[i]
+    alpha_t = math.pi * (2 * target_k + 1 - n) / n
+    px, py = td * math.cos(alpha_t), td * math.sin(alpha_t)
+    hysteresis = int(_HYSTERESIS_SECTORS_PERCENT * n)
+    best_score = -math.inf
+    for i in range(g):
+        a, b = ini[i], end[i]
+        if b - a < wide:  # narrow: its middle path
+            rep = int(math.floor(0.5 * a + 0.5 * b + 0.5))
+        elif _circular_distance(a, target_k, n) < _circular_distance(b, target_k, n):  # wide: near the target's side
+            rep = a + wide // 2
+        else:
+            rep = b - wide // 2
+        rep = min(max(rep, 0), n - 1)
+        score = _nd_score(obs, a, b, rep, cumsum, target_k, td, px, py, max_obs, last_k, hysteresis, params, tables)
+        gaps[i, 0], gaps[i, 1], gaps[i, 2], gaps[i, 3] = a, b, rep, score
+        best_score = max(best_score, score)
+    # Decision
+    lo, hi = 0, n - 1
+    if _target_directly(obs, target_k, td, max_obs):
+        code, k = _ND_TARGET_DIRECTLY, target_k
+        evaluation = 1.0 + max(0.0, (max_obs - td) / max_obs)
+    elif g == 0 or best_score <= 0:
+        code, k, evaluation = _ND_NO_WAY_FOUND, min(max(int(math.floor(0.5 * (n * 1.0 - 1.0) + 0.5)), 0), n - 1), 0.0
+    else:
+        best = 0
+        while gaps[best, 3] < best_score - _SCORE_TIE:  # the first of tied gaps
+            best += 1
+        lo, hi, k, evaluation = ini[best], end[best], int(gaps[best, 2]), gaps[best, 3]
+        code = _ND_SMALL_GAP if hi - lo < wide else _ND_WIDE_GAP
+    # Risk: mean TP-obstacle over k ± round(risk% N), clipped to [lo, hi]
+    half = int(math.floor(params[1] * n + 0.5))
+    first = max(lo, k - half if half < k else 0)
+    last = min(hi, k + half)
+    risk = _pairwise_sum(obs, first, last + 1 - first) / (last + 1 - first)
+    return code, k, evaluation, risk, g
 
 
-def _candidate_gaps(obs: np.ndarray, top: float, target_dist: float, min_width: int) -> _Gaps:
-    """Every run of paths with obs >= threshold, for each threshold of the sweep, of width (end - ini) >=
-    ``min_width``; exact repeats (the same run at several thresholds) are kept once, at their first place."""
-    n = obs.size
-    floor_d = min(target_dist, _GAP_MIN_DEPTH_CONSIDERED)
-    thresholds = _GAP_THRESHOLD_RATIOS * top + (1.0 - _GAP_THRESHOLD_RATIOS) * floor_d
-    above = np.zeros((thresholds.size, n + 2), dtype=np.int8)
-    above[:, 1:-1] = obs[None, :] >= thresholds[:, None]
-    edges = np.diff(above, axis=1)
-    _, ini = np.nonzero(edges == 1)  # row-major: threshold first, then index
-    _, end = np.nonzero(edges == -1)
-    end = end - 1
-    wide_enough = end - ini >= min_width
-    ini, end = ini[wide_enough], end[wide_enough]
-    _, first = np.unique(ini * (n + 1) + end, return_index=True)
-    order = np.sort(first)
-    ini, end = ini[order], end[order]
-    return _Gaps(ini, end, _run_max(obs, ini, end), np.minimum(obs[ini], obs[end]))
+@njit(cache=True)
+def _nd_gaps(obs: np.ndarray, target_dist: float, scratch: np.ndarray) -> int:
+    """The gaps that survive MRPT's filters, in search order (threshold ratio 0.95 first, then by index): writes
+    their first and last paths into ``scratch[:N]`` and ``scratch[N:2N]`` and returns their number; ``scratch`` is
+    (5N,) int64, the rest work space.
 
+    Candidates are the runs of paths with obs >= threshold, of width (last - first) >= ceil(1% N), for each
+    threshold ``r·top + (1 - r)·min(d_target, 0.6)`` of the sweep, ``top`` the largest TP-obstacle but the two end
+    paths' and ``r = 0.95 - 0.05 t``, t = 0..17 (0.95 down to 0.10: MRPT's loop is meant to reach 0.05 but
+    floating-point accumulation, 0.95 - 18 x 0.05 < 0.05, stops it at 0.10; we keep what MRPT runs). MRPT's four
+    filters, in order:
 
-def _run_max(obs: np.ndarray, ini: np.ndarray, end: np.ndarray) -> np.ndarray:
-    """max(obs[ini[i] : end[i] + 1]) for every i, in one ``reduceat``."""
-    if ini.size == 0:
-        return np.empty(0)
-    bounds = np.empty(2 * ini.size, dtype=np.intp)
-    bounds[0::2], bounds[1::2] = ini, end + 1
-    return np.maximum.reduceat(np.append(obs, 0.0), bounds)[0::2]
-
-
-def _filter_gaps(gaps: _Gaps, array_depth: float) -> np.ndarray:
-    """MRPT's four filters, applied in order; returns the keep mask.
-
-    1. A gap sharing its first or last path with an earlier surviving gap goes.
-    2. A gap whose depth variation (max - min at the borders) exceeds half the array's goes.
+    1. A gap sharing its first or last path with an earlier surviving gap goes. (A gap's fate here depends only
+       on the earlier survivors, so it is decided as the gap is found; exact repeats go this way too.)
+    2. A gap whose depth variation (max - min at the borders) exceeds half the array's (top - bottom) goes.
     3. A gap that contains more than one surviving gap goes (in order, counting those still alive).
     4. A gap inside a surviving gap goes (what is left: the maximal gaps).
     """
-    ini, end = gaps.ini, gaps.end
-    g = ini.size
-    alive = np.ones(g, dtype=bool)
-    shares = (ini[:, None] == ini[None, :]) | (end[:, None] == end[None, :])
-    for i in range(g):
-        if alive[i]:
-            alive[i + 1:] &= ~shares[i, i + 1:]
-    alive &= gaps.max_d - gaps.min_d <= _GAP_MAX_RELATIVE_DEPTH * array_depth
-    contains = (ini[None, :] >= ini[:, None]) & (end[None, :] <= end[:, None])  # [i, j]: j inside i
-    np.fill_diagonal(contains, False)
-    for i in np.flatnonzero((contains & alive[None, :]).sum(axis=1) > 1):  # inner counts only fall
-        if alive[i] and np.count_nonzero(contains[i] & alive) > 1:
-            alive[i] = False
-    return alive & ~(contains & alive[:, None]).any(axis=0)
+    n = obs.size
+    ini, end = scratch[:n], scratch[n:2 * n]
+    top = bottom = obs[1]  # MRPT leaves out the two end paths when measuring the array's range
+    for i in range(2, n - 1):
+        top = max(top, obs[i])
+        bottom = min(bottom, obs[i])
+    floor_d = min(target_dist, _GAP_MIN_DEPTH_CONSIDERED)
+    min_width = math.ceil(_GAP_MIN_WIDTH_PERCENT * n)
+    depth_limit = _GAP_MAX_RELATIVE_DEPTH * (top - bottom)
+    taken = scratch[2 * n:3 * n]  # bit 0: an earlier survivor starts at the path, bit 1: one ends there
+    taken[:] = 0
+    starts, ends = scratch[3 * n:4 * n], scratch[4 * n:]  # the runs of one threshold (at most ceil(N/2))
+    g = 0
+    for t in range(_GAP_THRESHOLD_COUNT):
+        ratio = 0.95 - 0.05 * t
+        threshold = ratio * top + (1.0 - ratio) * floor_d
+        runs = closed = 0
+        inside = False
+        for i in range(n):  # the run boundaries, free of data-dependent branches
+            above = obs[i] >= threshold
+            starts[runs] = i
+            ends[closed] = i - 1
+            runs += above > inside
+            closed += inside > above
+            inside = above
+        if inside:
+            ends[closed] = n - 1
+        for r in range(runs):
+            i, j = starts[r], ends[r]
+            if j - i >= min_width and taken[i] & 1 == 0 and taken[j] & 2 == 0:  # filter 1
+                taken[i] |= 1
+                taken[j] |= 2
+                peak = obs[i]
+                for q in range(i + 1, j + 1):
+                    peak = max(peak, obs[q])
+                if peak - min(obs[i], obs[j]) <= depth_limit:  # filter 2
+                    ini[g], end[g] = i, j
+                    g += 1
+    alive = taken  # reused: 1 = alive
+    alive[:g] = 1
+    for i in range(g):  # filter 3
+        nested = 0
+        for j in range(g):
+            if j != i and alive[j] and ini[j] >= ini[i] and end[j] <= end[i]:
+                nested += 1
+        alive[i] = nested <= 1
+    m = 0
+    for j in range(g):  # filter 4; the kept indices go to starts
+        if alive[j]:
+            outer = False
+            for i in range(g):
+                if i != j and alive[i] and ini[j] >= ini[i] and end[j] <= end[i]:
+                    outer = True
+                    break
+            if not outer:
+                starts[m] = j
+                m += 1
+    for r in range(m):
+        ini[r], end[r] = ini[starts[r]], end[starts[r]]
+    return m
 
 
-def _representative_paths(gaps: _Gaps, target_k: int, n: int, wide: int) -> np.ndarray:
-    """Path taken through each gap: the middle of a narrow gap; for a wide one, ``wide // 2`` paths inside the
-    border nearest (circularly) to the target, the last border on a tie."""
-    ini, end = gaps.ini, gaps.end
-    middle = np.floor(0.5 * ini + 0.5 * end + 0.5).astype(int)
-    to_ini, to_end = _circular_diff(ini, target_k, n), _circular_diff(end, target_k, n)
-    near_border = np.where(to_ini < to_end, ini + wide // 2, end - wide // 2)
-    rep = np.where(end - ini < wide, middle, near_border)
-    return np.clip(rep, 0, n - 1)
-
-
-def _circular_diff(k: np.ndarray | int, target_k: int, n: int) -> np.ndarray:
+@njit(cache=True, inline="always")
+def _circular_distance(k: int, target_k: int, n: int) -> int:
     """Number of paths between k and target_k around the circle."""
-    d = np.abs(np.asarray(k) - target_k)
-    return np.where(d > 0.5 * n, n - d, d)
+    d = abs(k - target_k)
+    return n - d if d > 0.5 * n else d
 
 
-def _target_directly(obs: np.ndarray, target_k: int, target_dist: float, max_obs: float) -> bool:
+@njit(cache=True, inline="always")
+def _nd_score(obs: np.ndarray, a: int, b: int, rep: int, cumsum: np.ndarray, target_k: int, td: float, px: float,
+              py: float, max_obs: float, last_k: int, hysteresis: int, params: np.ndarray,
+              tables: np.ndarray) -> float:
+    """Weighted mean of MRPT's four factors for the gap [a, b] taken along path ``rep``, 0 when that path is too
+    close to an obstacle.
+
+    f1: mean free distance over the gap (min(d_t, mean)/d_t for a gap pointing at a target inside the horizon);
+    f2: exp(-(Δpaths / (N/4))²), Δ circular; f3: 1 - min(1, dist(target, [origin, representative point]) /
+    max_obs) with the point at min(obs, max_obs, 0.95 d_t), the target (px, py) on its path's direction;
+    f4: 1 within floor(10% N) paths of the last choice.
+    """
+    if obs[rep] < params[2]:
+        return 0.0
+    mean = (cumsum[b + 1] - cumsum[a]) / (b - a + 1)
+    f1 = min(td, mean) / td if abs(rep - target_k) <= 1 and td < 1 else mean
+    f2 = tables[2, _circular_distance(rep, target_k, obs.size)]
+    reach = min(min(obs[rep], max_obs), 0.95 * td)
+    ux, uy = tables[0, rep], tables[1, rep]
+    along = min(max(px * ux + py * uy, 0.0), reach)  # projection onto the path, clamped to the segment
+    f3 = 1.0 - min(max_obs, math.hypot(px - along * ux, py - along * uy)) / max_obs
+    f4 = 1.0 if last_k >= 0 and abs(rep - last_k) <= hysteresis else 0.0
+    return (params[3] * f1 + params[4] * f2 + params[5] * f3 + params[6] * f4) / params[7]
+
+
+@njit(cache=True)
+def _target_directly(obs: np.ndarray, target_k: int, td: float, max_obs: float) -> bool:
     """MRPT's rule D1: the target path is not near the array ends and the ±ceil(2% N) paths around it are free
     for at least min(1.05 d_target, 0.95 max_obs)."""
     n = obs.size
     m = math.ceil(_DIRECT_SECTORS_PERCENT * n)
     if not m < target_k < n - m:
         return False
-    needed = min(_DIRECT_DIST_MARGIN * target_dist, _DIRECT_RANGE_FRACTION * max_obs)
-    return bool((obs[target_k - m:target_k + m + 1] >= needed).all())
+    needed = min(_DIRECT_DIST_MARGIN * td, _DIRECT_RANGE_FRACTION * max_obs)
+    for i in range(target_k - m, target_k + m + 1):
+        if obs[i] < needed:
+            return False
+    return True
 
 
-def _score_gaps(obs: np.ndarray, gaps: _Gaps, rep: np.ndarray, target_k: int, target_dist: float, max_obs: float,
-                last_k: int | None, cfg: NDConfig) -> np.ndarray:
-    """Weighted mean of MRPT's four factors for every gap, 0 where the representative path is too close.
-
-    f1: mean free distance over the gap (min(d_t, mean)/d_t for a gap pointing at a target inside the horizon);
-    f2: exp(-(Δpaths / (N/4))²), Δ circular; f3: 1 - min(1, dist(target, [origin, representative point]) /
-    max_obs) with the point at min(obs, max_obs, 0.95 d_t); f4: 1 within floor(10% N) paths of the last choice.
-    """
-    n = obs.size
-    cumsum = np.concatenate(([0.0], np.cumsum(obs)))
-    mean = (cumsum[gaps.end + 1] - cumsum[gaps.ini]) / (gaps.end - gaps.ini + 1)
-    at_target = (np.abs(rep - target_k) <= 1) & (target_dist < 1)
-    f1 = np.where(at_target, np.minimum(target_dist, mean) / target_dist, mean)
-    f2 = np.exp(-np.square(_circular_diff(rep, target_k, n) / (0.25 * n)))
-    reach = np.minimum(np.minimum(obs[rep], max_obs), 0.95 * target_dist)
-    f3 = 1.0 - np.minimum(max_obs, _distance_to_segments(target_k, target_dist, rep, reach, n)) / max_obs
-    if last_k is None:
-        f4 = np.zeros(rep.size)
-    else:
-        f4 = (np.abs(rep - last_k) <= int(_HYSTERESIS_SECTORS_PERCENT * n)).astype(float)
-    w = cfg.factor_weights
-    score = (w[0] * f1 + w[1] * f2 + w[2] * f3 + w[3] * f4) / sum(w)
-    return np.where(obs[rep] < cfg.too_close_obstacle, 0.0, score)
-
-
-def _distance_to_segments(target_k: int, target_dist: float, rep: np.ndarray, reach: np.ndarray,
-                          n: int) -> np.ndarray:
-    """Distance in TP-space from the target (placed on its path's direction) to each segment from the origin to
-    ``reach[i]`` along path ``rep[i]``."""
-    alpha_t = index_to_alpha(target_k, n)
-    px, py = target_dist * math.cos(alpha_t), target_dist * math.sin(alpha_t)
-    alpha = index_to_alpha(rep, n)
-    ux, uy = np.cos(alpha), np.sin(alpha)
-    along = np.clip(px * ux + py * uy, 0.0, reach)  # projection onto the unit direction, clamped to the segment
-    return np.hypot(px - along * ux, py - along * uy)
-
-
-def _risk(obs: np.ndarray, k: int, lo: int, hi: int, half_width: int) -> float:
-    """Mean TP-obstacle over paths k ± half_width, clipped to [lo, hi]."""
-    first = max(lo, k - half_width if half_width < k else 0)
-    last = min(hi, k + half_width)
-    return float(obs[first:last + 1].mean())
-
-
-def _gap_records(gaps: _Gaps, rep: np.ndarray, scores: np.ndarray) -> tuple[Gap, ...]:
-    return tuple(Gap(int(a), int(b), int(r), float(s)) for a, b, r, s in zip(gaps.ini, gaps.end, rep, scores))
+@njit(cache=True)
+def _pairwise_sum(a: np.ndarray, start: int, count: int) -> float:
+    """sum(a[start : start + count]) exactly as numpy adds it (``np.add.reduce``'s pairwise summation: 8
+    accumulators over blocks of up to 128, halves beyond), so that the risk is ``np.mean``'s to the bit."""
+    if count < 8:
+        total = 0.0
+        for i in range(start, start + count):
+            total += a[i]
+        return total
+    if count <= 128:
+        r0, r1, r2, r3 = a[start], a[start + 1], a[start + 2], a[start + 3]
+        r4, r5, r6, r7 = a[start + 4], a[start + 5], a[start + 6], a[start + 7]
+        i = start + 8
+        stop = start + count - count % 8
+        while i < stop:
+            r0 += a[i]
+            r1 += a[i + 1]
+            r2 += a[i + 2]
+            r3 += a[i + 3]
+            r4 += a[i + 4]
+            r5 += a[i + 5]
+            r6 += a[i + 6]
+            r7 += a[i + 7]
+            i += 8
+        total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < start + count:
+            total += a[i]
+            i += 1
+        return total
+    half = count // 2
+    half -= half % 8
+    return _pairwise_sum(a, start, half) + _pairwise_sum(a, start + half, count - half)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -558,6 +716,7 @@ def _gap_records(gaps: _Gaps, rep: np.ndarray, scores: np.ndarray) -> tuple[Gap,
 _VFF_OBSTACLE_GAIN = 20.0  # the repulsive resultant is scaled by this / N
 _VFF_NEARNESS_GAIN = 6.0  # obstacle nearness = min(1, this / |repulsive resultant|)
 _VFF_MAX_REPULSION = 1e6  # per-path force cap (1/obs for obs -> 0)
+_VFF_MIN_OBSTACLE = 1.0 / _VFF_MAX_REPULSION  # 1/this == 1e6 exactly, and 1/obs <= 1e6 for obs >= this
 
 
 @dataclass(frozen=True)
@@ -617,10 +776,9 @@ class HolonomicVFF:
         """Choose a direction and speed (see the class doc)."""
         n, cfg = inp.num_paths, self.config
         cos_k, sin_k = _unit_directions(n)
-        with np.errstate(divide="ignore"):
-            push = np.minimum(_VFF_MAX_REPULSION, 1.0 / inp.obstacles)
+        push = 1.0 / np.maximum(inp.obstacles, _VFF_MIN_OBSTACLE)  # min(1e6, 1/obs) to the bit, without 1/0
         scale = -_VFF_OBSTACLE_GAIN / n
-        rx, ry = scale * float(cos_k @ push), scale * float(sin_k @ push)
+        rx, ry = scale * float(cos_k.dot(push)), scale * float(sin_k.dot(push))
         repulsion = math.hypot(rx, ry)
         obstacle_nearness = 1.0 if repulsion == 0 else min(1.0, _VFF_NEARNESS_GAIN / repulsion)
         ax = cfg.target_attractive_force * math.cos(inp.target_alpha_rad)
@@ -630,7 +788,7 @@ class HolonomicVFF:
         target_nearness = inp.target_nearness(cfg.target_slow_approaching_distance_m)
         speed = inp.max_robot_speed * min(obstacle_nearness, target_nearness)
         info = VFFInfo((rx, ry), (ax, ay), obstacle_nearness, target_nearness)
-        return HolonomicOutput(alpha_to_index(alpha, n), alpha, speed, "FORCE_FIELD", info)
+        return HolonomicOutput(_path_index(alpha, n), alpha, speed, "FORCE_FIELD", info)
 
 
 _UNIT_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}

@@ -58,7 +58,8 @@ class NavigatorConfig:
         waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
-        slow_down_distance_m: obstacles (their effective distance) closer than this reduce the speed, m.
+        slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
+            direction weight) is below this reduce the speed, m.
         stop_distance_m: at this effective distance the speed reaches ``min_speed_near_obstacles``, m.
         min_speed_near_obstacles: relative speed floor of the obstacle speed regulation (0..1).
         lateral_obstacle_weight: how much an obstacle straight to the side counts relative to one in front.
@@ -94,10 +95,10 @@ class NavigatorConfig:
     waypoint_allowed_distance_m: float = 1.0
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
-    slow_down_distance_m: float = 0.8
-    stop_distance_m: float = 0.15
-    min_speed_near_obstacles: float = 0.3
-    lateral_obstacle_weight: float = 0.5
+    slow_down_distance_m: float = 0.6
+    stop_distance_m: float = 0.05
+    min_speed_near_obstacles: float = 0.4
+    lateral_obstacle_weight: float = 0.3
     memory: bool = True
     memory_config: MemoryConfig = field(default_factory=MemoryConfig)
     recovery_speed_m_s: float = 0.08
@@ -193,6 +194,8 @@ class ReactiveNavigator3D:
         padded = [grow(band, cfg.footprint_margin_m) for band in self.bands]
         self._spaces = [PTGSpace(name, padded, max_v_m_s, max_w_rad_s, cfg.num_paths, cfg.ref_distance_m,
                                  cfg.grid_resolution_m, cache_dir) for name in cfg.ptgs]
+        if not all(space.shares_grid_geometry(self._spaces[0]) for space in self._spaces):
+            raise ValueError("NavigatorConfig: every PTG must share the grid geometry (same bands, resolution, ref)")
         self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
         self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
@@ -202,6 +205,7 @@ class ReactiveNavigator3D:
     def reset(self) -> None:
         """Forget targets, memory and the previous command."""
         self._waypoints = np.zeros((0, 2))
+        self._allow_skip, self._allowed_m = np.zeros(0, dtype=bool), np.zeros(0)
         self._target = 0
         self._last_cmd = (0.0, 0.0)
         self._last_stamp_s: float | None = None
@@ -214,12 +218,27 @@ class ReactiveNavigator3D:
         if self._memory is not None:
             self._memory.reset()
 
-    def set_waypoints(self, waypoints_xy: np.ndarray) -> None:
-        """Follow (W, 2) waypoints (fixed frame, m) in order without stopping; the last one is the goal."""
+    def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
+                      allowed_distance_m: np.ndarray | None = None) -> None:
+        """Follow waypoints in order without stopping; the last one is the goal.
+
+        Args:
+            waypoints_xy: (W, 2) waypoints in the fixed frame of the poses, m.
+            allow_skip: (W,) whether the navigator may cut past each waypoint once a later one is reachable
+                (default all True); a waypoint in a doorway is best passed through, not skipped.
+            allowed_distance_m: (W,) distance within which each intermediate waypoint counts as passed, m
+                (default ``waypoint_allowed_distance_m``; the goal always uses ``target_allowed_distance_m``).
+        """
         wp = np.asarray(waypoints_xy, dtype=np.float64).reshape(-1, 2)
         if len(wp) == 0 or not np.isfinite(wp).all():
             raise ValueError(f"waypoints must be a non-empty (W, 2) finite array, got shape {wp.shape}")
-        self._waypoints, self._target = wp, 0
+        skip = np.ones(len(wp), dtype=bool) if allow_skip is None else np.asarray(allow_skip, dtype=bool)
+        near = (np.full(len(wp), self.config.waypoint_allowed_distance_m) if allowed_distance_m is None
+                else np.asarray(allowed_distance_m, dtype=np.float64))
+        if skip.shape != (len(wp),) or near.shape != (len(wp),):
+            raise ValueError(f"allow_skip and allowed_distance_m must have shape ({len(wp)},)")
+        near[-1] = self.config.target_allowed_distance_m
+        self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = None
 
@@ -253,14 +272,14 @@ class ReactiveNavigator3D:
             return self._output(0.0, 0.0, dt, t0, "reached")
         # Obstacles per band (sensed + remembered)
         cfg = self.config
-        band_xy = sort_into_bands(points_base, self.bands, cell_m=cfg.grid_resolution_m,
-                                  max_xy_m=1.1 * cfg.ref_distance_m)
+        band_xy = sort_into_bands(points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
         if self._memory is not None:
             virtual = self._memory.update(stamp_s, T_odom_base, band_xy)
             band_xy = [np.concatenate([real, extra]) if len(extra) else real for real, extra in zip(band_xy, virtual,
                                                                                                     strict=True)]
-        # TP-NavLimits per PTG: minimum over the bands (eq. 6.4)
-        limits = [space.tp_limits(band_xy) for space in self._spaces]
+        # TP-NavLimits per PTG: minimum over the bands (eq. 6.4); the bands' cells are found once for all PTGs
+        prepared = self._spaces[0].prepare(band_xy)
+        limits = [space.tp_limits(prepared) for space in self._spaces]
         target_index = self._reachable_target(T_odom_base, limits)
         target_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[target_index][None])[0]
         self._update_stuck(stamp_s, T_odom_base)
@@ -283,16 +302,18 @@ class ReactiveNavigator3D:
         """Pass waypoints within their allowed distance; the goal needs ``target_allowed_distance_m``."""
         xy = T_odom_base[:2, 2]
         while self._target < len(self._waypoints):
-            last = self._target == len(self._waypoints) - 1
-            allowed = self.config.target_allowed_distance_m if last else self.config.waypoint_allowed_distance_m
-            if np.linalg.norm(self._waypoints[self._target] - xy) > allowed:
+            if np.linalg.norm(self._waypoints[self._target] - xy) > self._allowed_m[self._target]:
                 break
             self._target += 1
             self._best_distance, self._best_distance_stamp_s = math.inf, None
 
     def _reachable_target(self, T_odom_base: np.ndarray, limits: list[np.ndarray]) -> int:
-        """The furthest waypoint ahead within the horizon that some PTG reaches collision-free, else the current."""
-        ahead = np.arange(self._target + 1, len(self._waypoints))
+        """The furthest waypoint ahead within the horizon that some PTG reaches collision-free, else the current.
+
+        Waypoints that may not be skipped stop the search: the robot goes through them."""
+        fixed = np.nonzero(~self._allow_skip[self._target:])[0]
+        end = self._target + int(fixed[0]) if len(fixed) else len(self._waypoints) - 1
+        ahead = np.arange(self._target + 1, end + 1)
         if len(ahead) == 0:
             return self._target
         xy = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[ahead])
@@ -373,15 +394,21 @@ class ReactiveNavigator3D:
 
     # -------------------------------------------------------------------------------------- speed regulation
     def _obstacle_speed_factor(self, band_xy: list[np.ndarray]) -> float:
-        """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``."""
+        """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``.
+
+        The distance of a point is its distance to the section of its own band."""
+        from simnav.navigation.collision_grid import signed_depth
+
         cfg = self.config
-        pts = np.concatenate(band_xy) if band_xy else np.zeros((0, 2))
-        if len(pts) == 0:
-            return 1.0
-        rng = np.hypot(pts[:, 0], pts[:, 1]) - self._robot_radius_m
-        frontal = np.clip(pts[:, 0] / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9), 0.0, 1.0)
-        weight = cfg.lateral_obstacle_weight + (1.0 - cfg.lateral_obstacle_weight) * frontal
-        effective = float(np.min(np.maximum(rng, 0.0) / np.maximum(weight, 1e-3)))
+        effective = math.inf
+        for band, pts in zip(self.bands, band_xy, strict=True):
+            near = pts[np.abs(pts).max(axis=1) < cfg.slow_down_distance_m + self._robot_radius_m] if len(pts) else pts
+            if len(near) == 0:
+                continue
+            gap = np.maximum(-signed_depth(near, band.polygon), 0.0)
+            frontal = np.clip(near[:, 0] / np.maximum(np.hypot(near[:, 0], near[:, 1]), 1e-9), 0.0, 1.0)
+            weight = cfg.lateral_obstacle_weight + (1.0 - cfg.lateral_obstacle_weight) * frontal
+            effective = min(effective, float(np.min(gap / np.maximum(weight, 1e-3))))
         ramp = (effective - cfg.stop_distance_m) / (cfg.slow_down_distance_m - cfg.stop_distance_m)
         return float(np.clip(ramp, cfg.min_speed_near_obstacles, 1.0))
 

@@ -3,7 +3,7 @@
 For speed at run time each collision grid is expanded once into a dense table, one row of N path distances per
 cell (uint8, rounded down to 1/255 of the horizon, so never optimistic): the TP-NavLimits of a band are then the
 column minimum over the rows of its occupied cells. The inverse map of points within the horizon is looked up in
-a table built once from :meth:`PTG.inverse_map_ws2tp_many`; points beyond it use MRPT's end-point extrapolation.
+a table of nearest path samples built once; points beyond it use MRPT's end-point extrapolation.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ FAMILIES = {"C": ("C", False), "alpha": ("alpha", False), "CS": ("CS", False), "
 
 _FREE = 255
 _LOOKUP_RESOLUTION_M = 0.05
+_EXACT_TOLERANCE_M = 0.10
 
 
 class PTGSpace:
@@ -60,26 +61,43 @@ class PTGSpace:
         return self.ptg.num_paths
 
     # ----------------------------------------------------------------------------------------- TP-obstacles
-    def tp_limits(self, band_xy: Sequence[np.ndarray]) -> np.ndarray:
-        """(N,) normalised collision-free distance per path: the minimum over the bands (eq. 6.4).
+    def prepare(self, band_xy: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per band: the unique grid cells of the points ahead, and the points the sections cover at the start.
+
+        Every PTG of a navigator shares the band polygons and the grid geometry, so this is done once per step
+        and passed to :meth:`tp_limits` of each PTG.
 
         Args:
             band_xy: per band, (P_i, 2) obstacle points in the base frame, m.
         """
-        limits = np.full(self.num_paths, _FREE, dtype=np.uint8)
-        inside = np.ones(self.num_paths)
-        for grid, dense, pts in zip(self.grids, self._dense, band_xy, strict=True):
-            if len(pts) == 0:
-                continue
-            cells = grid.cell_index(pts)
+        out = []
+        for grid, pts in zip(self.grids, band_xy, strict=True):
+            cells = grid.cell_index(pts) if len(pts) else np.zeros(0, dtype=np.int64)
             in_grid = cells >= 0
             at_start = in_grid & (grid.start_row[np.maximum(cells, 0)] >= 0)
-            ahead = cells[in_grid & ~at_start]
-            if len(ahead):
-                np.minimum(limits, dense[np.unique(ahead)].min(axis=0), out=limits)
-            if at_start.any():
-                # points the footprint covers at the start: the grid's back-away rule
-                np.minimum(inside, grid.tp_obstacles(pts[at_start]), out=inside)
+            out.append((np.unique(cells[in_grid & ~at_start]), np.asarray(pts)[at_start]))
+        return out
+
+    def shares_grid_geometry(self, other: PTGSpace) -> bool:
+        """Whether :meth:`prepare` of ``other`` is valid for this PTG."""
+        return all(a.n_side == b.n_side and a.half_extent_m == b.half_extent_m and a.resolution_m == b.resolution_m
+                   and np.array_equal(a.start_cells, b.start_cells) for a, b in zip(self.grids, other.grids,
+                                                                                     strict=True))
+
+    def tp_limits(self, prepared: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """(N,) normalised collision-free distance per path: the minimum over the bands (eq. 6.4).
+
+        Args:
+            prepared: the output of :meth:`prepare` for this step's points.
+        """
+        limits = np.full(self.num_paths, _FREE, dtype=np.uint8)
+        inside = np.ones(self.num_paths)
+        for grid, dense, (cells, start_pts) in zip(self.grids, self._dense, prepared, strict=True):
+            if len(cells):
+                np.minimum(limits, dense[cells].min(axis=0), out=limits)
+            if len(start_pts):
+                # points the section covers at the start: the grid's back-away rule
+                np.minimum(inside, grid.tp_obstacles(start_pts), out=inside)
         return np.minimum(limits.astype(np.float64) / _FREE, inside)
 
     # ----------------------------------------------------------------------------------------- inverse map
@@ -130,16 +148,24 @@ def _dense_table(grid: CollisionGrid) -> np.ndarray:
 
 
 class _InverseLookup:
-    """The PTG's inverse map tabulated on a square grid over the horizon."""
+    """The inverse map tabulated on a square grid over the horizon: the nearest path sample of each cell centre.
+
+    A cell centre within ``_EXACT_TOLERANCE_M`` of its nearest sample is exact (MRPT's ``tolerance_dist``).
+    """
 
     def __init__(self, ptg: PTG) -> None:
+        from scipy.spatial import cKDTree
+
         self.half_m = ptg.ref_distance_m
         self.mid = int(np.ceil(self.half_m / _LOOKUP_RESOLUTION_M))
         self.n = 2 * self.mid + 1  # a cell centred on the origin and on each axis
         centres = (np.arange(self.n) - self.mid) * _LOOKUP_RESOLUTION_M
         gx, gy = np.meshgrid(centres, centres, indexing="ij")
-        k, d, exact, _ = ptg.inverse_map_ws2tp_many(np.column_stack([gx.ravel(), gy.ravel()]))
-        self.k, self.d, self.exact = k.astype(np.int64), d, exact
+        k_all, n_all = np.nonzero(np.arange(ptg.poses.shape[1])[None, :] < ptg.num_samples[:, None])
+        dist, flat = cKDTree(ptg.poses[k_all, n_all, :2]).query(np.column_stack([gx.ravel(), gy.ravel()]))
+        self.k = k_all[flat].astype(np.int64)
+        self.d = ptg.dist_m[self.k, n_all[flat]] / ptg.ref_distance_m
+        self.exact = dist <= _EXACT_TOLERANCE_M
 
     def covers(self, p: np.ndarray) -> np.ndarray:
         return np.hypot(p[:, 0], p[:, 1]) < self.half_m

@@ -17,21 +17,15 @@ def _bands() -> list[Band]:
 
 def test_points_go_to_the_band_that_holds_their_height() -> None:
     pts = np.array([[1.0, 0.0, 0.3], [2.0, 0.0, 1.0], [3.0, 0.0, 0.6], [4.0, 0.0, 0.599]])
-    low, high = sort_into_bands(pts, _bands(), cell_m=0.05, max_xy_m=10.0)
+    low, high = sort_into_bands(pts, _bands(), max_xy_m=10.0)
     np.testing.assert_allclose(low, [[1.0, 0.0], [4.0, 0.0]])
     np.testing.assert_allclose(high, [[2.0, 0.0], [3.0, 0.0]])
 
 
 def test_floor_points_above_the_robot_far_points_and_nan_are_dropped() -> None:
     pts = np.array([[1.0, 0.0, 0.005], [1.0, 0.0, 1.7], [20.0, 0.0, 0.3], [np.nan, 0.0, 0.3], [1.0, np.inf, 0.3]])
-    low, high = sort_into_bands(pts, _bands(), cell_m=0.05, max_xy_m=10.0)
+    low, high = sort_into_bands(pts, _bands(), max_xy_m=10.0)
     assert low.shape == (0, 2) and high.shape == (0, 2)
-
-
-def test_one_point_per_cell() -> None:
-    pts = np.array([[1.001, 0.001, 0.3], [1.002, 0.002, 0.4], [1.2, 0.0, 0.3]])
-    (low, _) = sort_into_bands(pts, _bands(), cell_m=0.05, max_xy_m=10.0)
-    assert len(low) == 2
 
 
 def test_robot_bands_follow_the_prisms_and_planar_band_covers_all_of_them() -> None:

@@ -5,6 +5,7 @@ Scenes use N = 121 paths: path 60 is α = 0 (straight ahead), lower indices are 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -19,6 +20,7 @@ from simnav.navigation.holonomic import (
     HolonomicND,
     HolonomicVFF,
     NDConfig,
+    NDInfo,
     NDSituation,
     VFFConfig,
     alpha_to_index,
@@ -226,6 +228,118 @@ def test_nd_gap_search_matches_the_reference_loops(n):
         assert [(g.first_k, g.last_k) for g in out.info.gaps] == _reference_gaps(obs, dist)
 
 
+def _reference_nd(obs: np.ndarray, target_k: int, target_dist: float, last_k: int | None, max_obs: float = 1.0,
+                  max_speed: float = 1.0, ref_m: float = 1.0, slow: bool = True, cfg: NDConfig = NDConfig()):
+    """ND's decision written as plain loops over :func:`_reference_gaps` (MRPT's ``CHolonomicND::navigate``).
+
+    Returns ``(direction_k, speed, situation, gaps)`` with gaps as (first_k, last_k, representative_k, score).
+    The risk is ``np.mean``'s (numpy's pairwise sum, which the method reproduces: a plain sum may differ in the
+    last bit, and the speed is compared exactly).
+    """
+    n = len(obs)
+    td = max(0.01, target_dist)
+    wide = math.floor(cfg.wide_gap_size_percent * n + 0.5)
+
+    def circular(k):
+        d = abs(k - target_k)
+        return n - d if d > n / 2 else d
+
+    alpha_t = index_to_alpha(target_k, n)
+    px, py = td * math.cos(alpha_t), td * math.sin(alpha_t)
+    w = cfg.factor_weights
+    gaps = []
+    for a, b in _reference_gaps(obs, target_dist):
+        if b - a < wide:
+            rep = math.floor((a + b) / 2 + 0.5)
+        else:
+            rep = a + wide // 2 if circular(a) < circular(b) else b - wide // 2
+        mean = sum(obs[a:b + 1]) / (b - a + 1)
+        f1 = min(td, mean) / td if abs(rep - target_k) <= 1 and td < 1 else mean
+        f2 = math.exp(-(circular(rep) / (n / 4)) ** 2)
+        reach = min(obs[rep], max_obs, 0.95 * td)
+        ux, uy = math.cos(index_to_alpha(rep, n)), math.sin(index_to_alpha(rep, n))
+        along = min(max(px * ux + py * uy, 0.0), reach)
+        f3 = 1 - min(max_obs, math.hypot(px - along * ux, py - along * uy)) / max_obs
+        f4 = 1.0 if last_k is not None and abs(rep - last_k) <= int(0.1 * n) else 0.0
+        score = (w[0] * f1 + w[1] * f2 + w[2] * f3 + w[3] * f4) / sum(w)
+        gaps.append((a, b, rep, 0.0 if obs[rep] < cfg.too_close_obstacle else score))
+    m = math.ceil(0.02 * n)
+    lo, hi = 0, n - 1
+    if m < target_k < n - m and all(v >= min(1.05 * td, 0.95 * max_obs) for v in obs[target_k - m:target_k + m + 1]):
+        situation, k = NDSituation.TARGET_DIRECTLY, target_k
+    elif not gaps or max(g[3] for g in gaps) <= 0:
+        situation, k = NDSituation.NO_WAY_FOUND, n // 2  # the path at α = 0 (odd N), just above it (even N)
+    else:
+        best = max(g[3] for g in gaps)
+        lo, hi, k, _ = next(g for g in gaps if g[3] >= best - 1e-9)
+        situation = NDSituation.SMALL_GAP if hi - lo < wide else NDSituation.WIDE_GAP
+    half = math.floor(cfg.risk_evaluation_sectors_percent * n + 0.5)
+    risk = float(np.mean(obs[max(lo, k - half):min(hi, k + half) + 1]))
+    if situation == NDSituation.NO_WAY_FOUND:
+        speed = 0.0
+    else:
+        nearness = min(1.0, target_dist * ref_m / cfg.target_slow_approaching_distance_m) if slow else 1.0
+        speed = max_speed * min(min(1.0, risk / cfg.risk_evaluation_distance), nearness)
+    return k, speed, situation, gaps
+
+
+_ND_OPTIONS = {"too_close_obstacle": 0.05, "wide_gap_size_percent": 0.1, "risk_evaluation_sectors_percent": 0.3,
+               "factor_weights": (0.3, 1.0, 0.2, 2.0)}
+
+
+@pytest.mark.parametrize(("n", "options"), [(121, {}), (31, {}), (100, {}), (121, _ND_OPTIONS)])
+def test_nd_decisions_match_the_reference_loops_exactly(n, options):
+    """The compiled ND and :func:`_reference_nd` agree to the bit on (direction_k, speed, situation) over 100 random
+    scenes per case (400 in all), run in sequence through one instance so that the hysteresis plays."""
+    rng = np.random.default_rng(1000 + n + len(options))
+    k = np.arange(n)
+    nd, last_k, seen = HolonomicND(**options), None, set()
+    cfg = nd.config
+    for trial in range(100):
+        kind = trial % 5
+        if kind == 0:
+            obs = rng.random(n)  # jagged
+        elif kind == 1:  # smooth valleys
+            obs = 0.6 + 0.6 * np.sin(k * rng.uniform(0.05, 0.4) + rng.uniform(0, 6)) + 0.1 * rng.standard_normal(n)
+        elif kind == 2:  # a wall with an opening, or an obstacle in free space
+            lo, width = rng.integers(0, n), rng.integers(2, n // 2)
+            obs = np.full(n, rng.uniform(0.05, 1.0))
+            obs[lo:lo + width] = rng.uniform(0.0, 1.0)
+        elif kind == 3:
+            obs = np.round(4 * rng.random(n)) / 4  # plateaus: equal levels, tied scores
+        else:
+            obs = rng.random(n) ** 3  # mostly close
+        obs = np.clip(obs, 0.0, 1.0)
+        target_k = int(rng.integers(0, n))
+        target_dist = float(rng.choice([0.0, 0.03, 0.2, 0.5, 0.9, 2.0, rng.uniform(0.0, 1.5)]))
+        max_speed, ref_m, slow = float(rng.choice([1.0, 0.5])), float(rng.choice([1.0, 6.0])), bool(rng.random() < 0.5)
+        out = nd.navigate(HolonomicInput.toward_path(obs, target_k, target_dist, max_robot_speed=max_speed,
+                                                     ref_distance_m=ref_m, slow_down_near_target=slow))
+        ref_k, ref_speed, ref_situation, ref_gaps = _reference_nd(obs, target_k, target_dist, last_k, 1.0, max_speed,
+                                                                  ref_m, slow, cfg)
+        assert (out.direction_k, out.speed, out.situation) == (ref_k, ref_speed, ref_situation), trial
+        assert out.direction_alpha_rad == index_to_alpha(ref_k, n)
+        assert [(g.first_k, g.last_k, g.representative_k) for g in out.info.gaps] == [g[:3] for g in ref_gaps]
+        assert [g.score for g in out.info.gaps] == pytest.approx([g[3] for g in ref_gaps], abs=1e-12)
+        last_k = None if ref_situation == NDSituation.NO_WAY_FOUND else ref_k
+        seen.add(ref_situation)
+    assert seen == set(NDSituation)
+
+
+def test_nd_info_reads_as_an_ndinfo():
+    out = _nd(_blocked(45, 71, 0.4), dist=2.0)
+    info = out.info
+    assert isinstance(info, NDInfo) and info.situation == NDSituation.WIDE_GAP and info.target_k == AHEAD
+    plain = NDInfo(info.situation, info.target_k, info.gaps, info.evaluation, info.risk)
+    assert info == plain and plain == info and hash(info) == hash(plain)
+    assert repr(info) == repr(plain)
+    assert all(type(g) is Gap and type(g.first_k) is int and type(g.score) is float for g in info.gaps)
+    assert dataclasses.replace(info, risk=0.5) == dataclasses.replace(plain, risk=0.5)
+    nd = HolonomicND()
+    nd.config = NDConfig(too_close_obstacle=0.5)  # a replaced config takes effect
+    assert _nd(_blocked(80, 96, 0.45, base=0.05), dist=2.0, method=nd).situation == NDSituation.NO_WAY_FOUND
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # VFF
 # ----------------------------------------------------------------------------------------------------------------
@@ -335,11 +449,15 @@ def test_input_is_validated_and_copied():
 
 
 def test_a_call_takes_well_under_a_millisecond():
+    # The navigator runs one call per PTG (3) per step within a 1 ms step budget.
     rng = np.random.default_rng(0)
     inputs = [HolonomicInput(np.clip(rng.random(N) + 0.3, 0, 1), rng.uniform(-3, 3), 2.0) for _ in range(50)]
     for method in (HolonomicND(), HolonomicVFF()):
-        start = time.perf_counter()
-        for _ in range(4):
+        method.navigate(inputs[0])  # compiles (or loads) the kernels
+        best = math.inf
+        for _ in range(3):
+            start = time.perf_counter()
             for inp in inputs:
                 method.navigate(inp)
-        assert (time.perf_counter() - start) / 200 < 2e-3  # measured ~0.2 ms (ND), ~0.015 ms (VFF); loose for CI
+            best = min(best, (time.perf_counter() - start) / len(inputs))
+        assert best < 2e-4  # measured ~0.01 ms (ND), ~0.006 ms (VFF); loose for CI

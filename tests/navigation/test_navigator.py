@@ -107,14 +107,14 @@ def test_a_point_above_the_low_band_only_blocks_the_band_it_is_in(cache_dir) -> 
     space = PTGSpace("C", [BASE, MAST], V_MAX, W_MAX, 61, 3.0, 0.05, cache_dir)
     k0 = space.num_paths // 2  # the straight path
     # beside the mast, above the base: the base passes under it, the mast passes beside it
-    above = sort_into_bands(np.array([[1.0, 0.2, 0.7]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
-    assert space.tp_limits(above)[k0] == pytest.approx(1.0)
+    above = sort_into_bands(np.array([[1.0, 0.2, 0.7]]), [BASE, MAST], max_xy_m=3.3)
+    assert space.tp_limits(space.prepare(above))[k0] == pytest.approx(1.0)
     # the same (x, y) at base height blocks the straight path where the base front reaches it
-    low = sort_into_bands(np.array([[1.0, 0.2, 0.3]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
-    assert space.tp_limits(low)[k0] * 3.0 == pytest.approx(0.7, abs=0.08)
+    low = sort_into_bands(np.array([[1.0, 0.2, 0.3]]), [BASE, MAST], max_xy_m=3.3)
+    assert space.tp_limits(space.prepare(low))[k0] * 3.0 == pytest.approx(0.7, abs=0.08)
     # in front of the mast, it blocks the straight path where the mast front reaches it
-    mast = sort_into_bands(np.array([[1.0, 0.0, 0.7]]), [BASE, MAST], cell_m=0.05, max_xy_m=3.3)
-    assert space.tp_limits(mast)[k0] * 3.0 == pytest.approx(0.95, abs=0.08)
+    mast = sort_into_bands(np.array([[1.0, 0.0, 0.7]]), [BASE, MAST], max_xy_m=3.3)
+    assert space.tp_limits(space.prepare(mast))[k0] * 3.0 == pytest.approx(0.95, abs=0.08)
 
 
 def _long_table() -> np.ndarray:
