@@ -663,4 +663,4 @@ def _sum_by_index(idx: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """Sum (P, 2) ``values`` into n rows by ``idx``."""
     sum_x = np.bincount(idx, weights=values[:, 0], minlength=n)
     sum_y = np.bincount(idx, weights=values[:, 1], minlength=n)
-    return np.stack([sum_x, sum_y], axis=1)
+    return np.stack([sum_x, sum_y], axis=1).astype(np.float64)  # bincount of nothing is int64

@@ -8,10 +8,11 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from simnav.cli.app import SetOption, _run_dir, _update_latest, app, console, err_console
+from simnav.cli.app import SetOption, _run_dir, _update_latest, app, console, err_console, user_errors
 
 
 @app.command()
+@user_errors
 def mission(
     world: Annotated[str, typer.Option(help="World name (simnav worlds) or YAML path.")] = "office",
     robot: Annotated[str, typer.Option(help="Robot name (simnav robots) or YAML path.")] = "giraff",

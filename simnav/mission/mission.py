@@ -295,7 +295,9 @@ class _MissionRunner:
         """Stuck: move the robot to the next roadmap node of its route and go on (counted as an intervention)."""
         graph = self.sim.roadmap
         xy = self._true_pose()[:2, 2]
-        remaining = [n for n in route if np.linalg.norm(graph.nodes_xy[n] - xy) > 0.5] or route[-1:]
+        # the route node after the one the robot is closest to (or the goal)
+        closest = int(np.argmin(np.linalg.norm(graph.nodes_xy[route] - xy, axis=1)))
+        remaining = route[min(closest + 1, len(route) - 1):]
         node = remaining[0]
         nxt = remaining[1] if len(remaining) > 1 else node
         heading = graph.nodes_xy[nxt] - graph.nodes_xy[node]

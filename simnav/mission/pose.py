@@ -57,6 +57,8 @@ class PoseSource:
         self._T_world_odom = np.asarray(T_world_base_true, dtype=np.float64)
         self._T_odom_base = np.eye(3)
         self._odometry = None if self.is_ground_truth else _make_odometry(self.name)
+        if self.estimates and stamp_s <= self.estimates[-1][0]:
+            self.estimates.pop()
         self.estimates.append((stamp_s, self._T_world_odom.copy()))
 
     def feed(self, reading: Reading) -> None:
@@ -72,6 +74,8 @@ class PoseSource:
             self._T_odom_base = se2.from_se3(self._odometry.process(reading).T_odom_base)
         else:
             return
+        if self.estimates and reading.stamp_s <= self.estimates[-1][0]:
+            self.estimates.pop()  # same instant as the anchor (or an earlier reading): keep the newest
         self.estimates.append((reading.stamp_s, self.T_world_base()))
 
     def T_world_base(self, T_world_base_true: np.ndarray | None = None) -> np.ndarray:

@@ -169,3 +169,12 @@ def test_door_jambs_steer_but_do_not_brake_when_the_way_is_clear() -> None:
     assert through[0] == pytest.approx(plain[0])
     into_wall = _wall_force(np.array([[2.0, -0.35]]), wall, direction=(0.0, 1.0))[0]
     assert into_wall[1] < 0.0  # a wall straight ahead still brakes
+
+
+def test_walls_out_of_reach_with_a_look_ahead_give_float_forces() -> None:
+    # pedestrians near a wall's look-ahead stretch but beyond the repulsion cutoff: nothing is summed, and the
+    # (empty) sum must still be a float array the look-ahead rule can modify
+    pos = np.array([[0.0, 1.9], [3.0, 1.9]])
+    wall = np.array([[[-5.0, 0.0], [5.0, 0.0]]])
+    force = _wall_force(pos, wall, direction=(0.0, -1.0), wall_cutoff_m=1.0, wall_look_ahead_m=2.0)
+    assert force.dtype == np.float64 and np.all(np.isfinite(force))

@@ -1,0 +1,76 @@
+"""`simnav mission`: a headless navigation mission writes a valid report, and the same seed gives the same mission."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from simnav.io import read_tum
+from simnav.mission.mission import MissionSettings, mission_robot, run_mission
+from simnav.robot import load_robot
+from simnav.world import load_world
+
+QUIET = ["--world", "polygonal", "--agents", "0", "--robots", "0", "--targets", "2", "--seed", "3"]
+REPORT_KEYS = {"simnav_version", "world", "robot", "seed", "nav", "pose_source", "people", "targets_requested",
+               "targets_reached", "success_rate", "distance_m", "duration_s", "avg_speed_m_s", "max_speed_m_s",
+               "minor_incidents", "interventions", "min_clearance_m", "path_length_ratio", "navigator_step_ms",
+               "real_time_factor", "wall_time_s", "odometry", "targets", "incidents", "intervention_log"}
+
+
+def simnav(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "simnav.cli", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_a_short_mission_writes_a_valid_report_trajectories_and_plot(tmp_path):
+    out = tmp_path / "run"
+    result = simnav("mission", *QUIET, "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert REPORT_KEYS <= set(report)
+    assert report["targets_requested"] == 2 and report["targets_reached"] == 2
+    assert report["interventions"] == 0 and report["minor_incidents"]["total"] == 0
+    assert report["distance_m"] > 2.0 and 0 < report["avg_speed_m_s"] <= report["max_speed_m_s"] <= 0.75
+    assert report["min_clearance_m"] > 0.05
+    assert report["navigator_step_ms"]["median"] > 0
+    assert [set(row) >= {"reached", "time_s", "distance_m", "shortest_m", "path_length_ratio"}
+            for row in report["targets"]] == [True, True]
+    gt = read_tum(out / "trajectory_gt.txt")
+    assert len(gt) > 10 and gt.stamps_s[-1] == pytest.approx(report["duration_s"], abs=0.06)
+    assert len(read_tum(out / "trajectory_est.txt")) == len(gt)
+    assert (out / "mission.png").stat().st_size > 10_000
+    assert "targets reached" in result.stdout
+
+
+def test_the_same_seed_gives_the_same_mission():
+    world, robot = load_world("polygonal"), load_robot("giraff")
+    settings = MissionSettings(targets=1, seed=5, sim={"pedestrians": 2, "wanderers": 0})
+    runs = [run_mission(world, mission_robot(robot, settings), settings) for _ in range(2)]
+    a, b = (r.targets[0] for r in runs)
+    assert (a.node, a.reached, a.time_s) == (b.node, b.reached, b.time_s)
+    assert runs[0].distance_m == runs[1].distance_m
+    assert runs[0].minor_incidents == runs[1].minor_incidents
+
+
+def test_an_odometry_pose_source_reports_its_drift(tmp_path):
+    world, robot = load_world("polygonal"), load_robot("giraff")
+    settings = MissionSettings(targets=1, seed=2, pose_source="wheels", sim={"pedestrians": 0, "wanderers": 0})
+    report = run_mission(world, mission_robot(robot, settings), settings)
+    assert report.odometry is not None and report.odometry["source"] == "wheels"
+    assert np.isfinite(report.odometry["rpe"]["trans_rmse_cm_s"])
+    assert 0 <= report.odometry["final_error_m"] < 0.5
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--pose-source", "sonar"], "unknown pose source 'sonar'"),
+    (["--nav", "4d"], "--nav must be 3d or 2d"),
+    (["--world", "atlantis"], "unknown world 'atlantis'"),
+])
+def test_bad_options_are_one_clear_error(args, message):
+    result = simnav("mission", "--targets", "1", *args)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
