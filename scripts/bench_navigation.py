@@ -65,9 +65,10 @@ def main() -> None:
     robot = load_robot("giraff")
     drive = robot.drive
     points = room_points(np.random.default_rng(0), 5000)
-    table = Table("benchmark", "median", "p95", title=f"3D-PTG navigator, Giraff, 5000 points (simnav {simnav.__version__})")
+    title = f"3D-PTG navigator, Giraff, 5000 points (simnav {simnav.__version__})"
+    table = Table("benchmark", "median", "p95", title=title)
     with tempfile.TemporaryDirectory() as cache:
-        for label, cached in (("cold (empty cache)", False), ("cached", True)):
+        for label in ("cold (empty cache)", "cached"):
             t0 = time.perf_counter()
             ReactiveNavigator3D(robot_bands(robot), drive.max_v_m_s, drive.max_w_rad_s, cache_dir=cache)
             table.add_row(f"navigator set-up, 4 bands x 3 PTGs: {label}", f"{time.perf_counter() - t0:.2f} s", "")

@@ -19,7 +19,7 @@ def mission(
     agents: Annotated[int | None, typer.Option(help="Number of people (default: the world's).", min=0)] = None,
     robots_: Annotated[int | None, typer.Option("--robots", help="Other wandering robots (default: the world's).",
                                                 min=0)] = None,
-    targets: Annotated[int | None, typer.Option(help="Targets to visit (default 3 unless --duration).",
+    targets: Annotated[int | None, typer.Option(help="Targets to visit (default 2 unless --duration).",
                                                 min=1)] = None,
     duration: Annotated[float | None, typer.Option(help="Run for this many simulated seconds instead.",
                                                    min=0.05)] = None,
@@ -56,7 +56,7 @@ def mission(
     PoseSource(pose_source, robot_spec)  # one clear error for an unknown source or a missing sensor
     sim_data = apply_overrides({"pedestrians": agents, "wanderers": robots_}, sim_set, "--sim-set")
     sim_cfg = validate(SimConfig, {k: v for k, v in sim_data.items() if v is not None}, "--sim-set")
-    settings = validate(MissionSettings, {"targets": targets if targets is not None or duration is not None else 3,
+    settings = validate(MissionSettings, {"targets": targets if targets is not None or duration is not None else 2,
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
                                           "nav": nav, "memory": not no_memory, "sim": sim_cfg.model_dump()},
                         "simnav mission")

@@ -54,7 +54,7 @@ NARROW_NODE_TOLERANCE_M = 0.3
 class MissionSettings(FrozenModel):
     """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator."""
 
-    targets: Annotated[int, Field(ge=1, le=100000)] | None = 3
+    targets: Annotated[int, Field(ge=1, le=100000)] | None = 2
     duration_s: Annotated[float, Field(gt=0, le=10 * 86400)] | None = None
     seed: int = 1
     pose_source: str = "gt"

@@ -122,6 +122,7 @@ class NavigatorConfig:
              "need 0 <= secure_distance_start < secure_distance_end <= 1"),
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
+            (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
         ]
@@ -198,6 +199,7 @@ class ReactiveNavigator3D:
             raise ValueError("NavigatorConfig: every PTG must share the grid geometry (same bands, resolution, ref)")
         self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
         self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
+        self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
         self.reset()
 
@@ -396,19 +398,17 @@ class ReactiveNavigator3D:
     def _obstacle_speed_factor(self, band_xy: list[np.ndarray]) -> float:
         """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``.
 
-        The distance of a point is its distance to the section of its own band."""
-        from simnav.navigation.collision_grid import signed_depth
-
+        The distance of a point is its distance to the bounding box of its own band's section."""
         cfg = self.config
         effective = math.inf
-        for band, pts in zip(self.bands, band_xy, strict=True):
-            near = pts[np.abs(pts).max(axis=1) < cfg.slow_down_distance_m + self._robot_radius_m] if len(pts) else pts
-            if len(near) == 0:
+        for (lo, hi), pts in zip(self._band_boxes, band_xy, strict=True):
+            if len(pts) == 0:
                 continue
-            gap = np.maximum(-signed_depth(near, band.polygon), 0.0)
-            frontal = np.clip(near[:, 0] / np.maximum(np.hypot(near[:, 0], near[:, 1]), 1e-9), 0.0, 1.0)
+            gap_xy = np.maximum(np.maximum(lo - pts, pts - hi), 0.0)  # (P, 2) outside the box along x and y
+            gap = np.hypot(gap_xy[:, 0], gap_xy[:, 1])
+            frontal = np.clip(pts[:, 0] / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9), 0.0, 1.0)
             weight = cfg.lateral_obstacle_weight + (1.0 - cfg.lateral_obstacle_weight) * frontal
-            effective = min(effective, float(np.min(gap / np.maximum(weight, 1e-3))))
+            effective = min(effective, float(np.min(gap / weight)))
         ramp = (effective - cfg.stop_distance_m) / (cfg.slow_down_distance_m - cfg.stop_distance_m)
         return float(np.clip(ramp, cfg.min_speed_near_obstacles, 1.0))
 
