@@ -75,7 +75,7 @@ class Sequence:
 def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     """Record (or load from the cache) ``seconds`` of scans in a benchmark world."""
     world_name, wanderers = WORLDS[name]
-    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v3.npz"
+    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v4.npz"
     if path.is_file():
         d = np.load(path)
         return Sequence(name, d["stamps_s"], d["ranges_m"], d["gt_xy_yaw"], d["angles_rad"], d["T_base_sensor"],
@@ -86,10 +86,10 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     with Simulator(load_world(world_name), robot, config, seed=seed) as sim:
         follower = RoadmapFollower(sim.roadmap, np.array(sim.pose_xy_yaw[:2]), np.random.default_rng(seed),
                                    robot.drive.max_v_m_s, robot.drive.max_w_rad_s)
-        scan = sim.latest("laser")
+        scan = sim.capture_now("laser")
         for _ in range(math.ceil(seconds / sim.config.control_dt_s)):
             v, w = follower.command(*sim.pose_xy_yaw)
-            for reading in sim.step(v if clear_ahead(sim) else 0.0, w):
+            for reading in sim.step(v if clear_ahead(sim, scan) else 0.0, w):
                 T = sim.T_world_base_at(reading.stamp_s)
                 stamps.append(reading.stamp_s)
                 ranges.append(reading.ranges_m)
@@ -103,15 +103,19 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     return seq
 
 
-def clear_ahead(sim: Simulator, distance_m: float = 1.0, half_angle_rad: float = math.radians(40)) -> bool:
-    """Whether no wandering robot is within ``distance_m`` ahead of the base: the roadmap follower has no obstacle
-    avoidance, so it waits for them instead of pushing into them."""
+def clear_ahead(sim: Simulator, scan: LaserScan, distance_m: float = 1.0, stop_range_m: float = 0.6,
+                half_angle_rad: float = math.radians(40)) -> bool:
+    """Whether the robot may drive on: no wandering robot within ``distance_m`` ahead of the base and no laser return
+    within ``stop_range_m`` ahead of the scanner (a closing door, a robot). The roadmap follower has no obstacle
+    avoidance, so it waits instead of pushing into things, which would corrupt the ground truth of the run."""
     x, y, yaw = sim.pose_xy_yaw
     offsets = sim.wanderers.positions_xy - (x, y)
     distance = np.hypot(offsets[:, 0], offsets[:, 1])
     bearing = np.arctan2(offsets[:, 1], offsets[:, 0]) - yaw
     ahead = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing))) < half_angle_rad
-    return not np.any(ahead & (distance < distance_m))
+    front = (np.abs(scan.angles_rad) < half_angle_rad) & scan.valid
+    blocked = bool(np.any(np.asarray(scan.ranges_m)[front] < stop_range_m))
+    return not np.any(ahead & (distance < distance_m)) and not blocked
 
 
 # ------------------------------------------------------------------------------------------------ methods

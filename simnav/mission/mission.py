@@ -200,6 +200,7 @@ class _MissionRunner:
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
         self._speeds: list[float] = []
+        self._settle_steps = 0
 
     def close(self) -> None:
         self.sim.close()
@@ -311,6 +312,7 @@ class _MissionRunner:
         self.pose.anchor(self.sim.time_s, self._true_pose())
         self.obstacles.reset()
         self._last_xy = None
+        self._settle_steps = 10
         self._follow(remaining)
         return remaining
 
@@ -326,7 +328,10 @@ class _MissionRunner:
         self._last_xy = T[:2, 3].copy()
         self._gt.append((self.sim.time_s, T.copy()))
         v, _ = self.sim.base_velocity()
-        self._speeds.append(abs(v))
+        if self._settle_steps > 0:  # the base is still settling after being moved by an intervention
+            self._settle_steps -= 1
+        else:
+            self._speeds.append(abs(v))
 
     def _measure_clearance(self) -> None:
         """Distance from every prism of the robot (true pose) to the static obstacles in its height band."""

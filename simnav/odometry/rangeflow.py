@@ -86,6 +86,10 @@ class RangeFlowConfig:
             the largest.
         degeneracy_spacing_deg: that information is taken at the pyramid level whose beam spacing is closest to
             this, deg: at full resolution range noise swamps the local surface orientation.
+        max_speed_m_s: an alignment implying a faster motion of the scanner is not believed (a scan blocked by
+            something at the scanner, a door swinging across it): the constant-velocity prediction is reported
+            instead, as for a scan with too few beams, m/s.
+        max_yaw_rate_rad_s: the same for the rotation, rad/s.
     """
 
     pyramid_gate_m: float = 0.3
@@ -96,8 +100,11 @@ class RangeFlowConfig:
     lost_variance: float = 1.0
     degeneracy_threshold: float = 0.01
     degeneracy_spacing_deg: float = 2.0
+    max_speed_m_s: float = 5.0
+    max_yaw_rate_rad_s: float = 2 * math.pi
 
     def __post_init__(self) -> None:
+        require(self.max_speed_m_s > 0 and self.max_yaw_rate_rad_s > 0, "max_speed_m_s, max_yaw_rate_rad_s must be > 0")
         require(self.pyramid_gate_m > 0, "pyramid_gate_m must be > 0")
         require(self.min_level_beams >= 4, "min_level_beams must be >= 4")
         require(self.min_valid_points >= MIN_ROWS, f"min_valid_points must be >= {MIN_ROWS}")
@@ -1537,7 +1544,8 @@ class RangeFlowOdometry(ABC):
         if frame is not None and ref is not None:
             self._info_geom = self._information_level(ref.geoms)
             alignment = self._align(ref, frame, xi_prior)
-        if alignment is not None and alignment.solution is not None and np.all(np.isfinite(alignment.T_ref_new)):
+        if (alignment is not None and alignment.solution is not None and np.all(np.isfinite(alignment.T_ref_new))
+                and self._plausible(alignment.T_ref_new, dt)):
             T_inc = alignment.T_ref_new
             cov_laser, degenerate = self._covariance(alignment)
             rows = alignment.solution.rows
@@ -1567,6 +1575,14 @@ class RangeFlowOdometry(ABC):
             stamp_s=ps.stamp_s, T_odom_base=self._T_odom_base.copy(), twist_base=_finite(twist),
             covariance=_finite(0.5 * (cov + cov.T)), degenerate=bool(degenerate and not first),
             valid_points=int(rows), runtime_s=time.perf_counter() - t0, extra=extra)
+
+    def _plausible(self, T_inc: np.ndarray, dt: float) -> bool:
+        """Whether an increment over ``dt`` stays within the configured speed limits."""
+        if dt <= 0:
+            return True
+        xi = se2_log(T_inc)
+        return (math.hypot(xi[0], xi[1]) <= self.config.max_speed_m_s * dt
+                and abs(xi[2]) <= self.config.max_yaw_rate_rad_s * dt)
 
     def _information_level(self, geoms: tuple[LevelGeometry, ...]) -> LevelGeometry:
         """The level whose beam spacing is closest to ``degeneracy_spacing_deg`` (level solvers attach the

@@ -115,3 +115,21 @@ def test_config_errors_name_the_allowed_values():
 def test_registry_builds_a_configured_srf():
     odo = make_scan_odometry("srf", mode="MA")
     assert isinstance(odo, SRFOdometry) and odo.config.mode == "MA"
+
+
+@pytest.mark.parametrize("name", ["srf", "rf2o"])
+def test_an_implausibly_fast_alignment_is_not_believed(rangesim, name):
+    # the second scan is taken 1 m away 0.1 s later (10 m/s): whatever the alignment says, it is not a robot's
+    # motion; the constant-velocity prediction (here: standing still) is reported with the lost covariance
+    sim = _sim(rangesim)
+    odo = make_scan_odometry(name)
+    odo.process(sim.scan(T_WORLD_START, 0.0))
+    est = odo.process(sim.scan(T_WORLD_START @ se2.from_xy_yaw(1.0, 0.0, 0.0), 0.1))
+    np.testing.assert_allclose(est.T_odom_base, np.eye(3), atol=1e-12)
+    assert not est.extra["measured"]
+    np.testing.assert_allclose(est.covariance, odo.config.lost_variance * np.eye(3))
+    # the same displacement over 1 s is believed
+    odo.reset()
+    odo.process(sim.scan(T_WORLD_START, 0.0))
+    est = odo.process(sim.scan(T_WORLD_START @ se2.from_xy_yaw(0.3, 0.0, 0.0), 1.0))
+    assert est.extra["measured"]
