@@ -1,15 +1,19 @@
 """``simnav odometry`` and ``simnav eval``: run an odometry over a recorded dataset, score a trajectory.
 
-``simnav odometry METHOD INPUT`` reads a CARMEN log or a ``simnav record`` folder and writes the estimated base
-poses ``T_odom_base`` as a TUM trajectory (``est.txt``, with the scan odometries' 3x3 covariances in the
-``est.cov.txt`` sidecar). ``simnav eval EST GT`` compares such a trajectory with a ground truth: RPE per second,
-SE(3)-aligned ATE and drift per segment length. Both end every user error as one red line and exit code 2.
+``simnav odometry METHOD INPUT`` writes the estimated trajectory as a TUM file (``est.txt``, with each increment's
+covariance in the ``est.cov.txt`` sidecar). The planar odometries (srf, rf2o, wheels) read a CARMEN log or a
+``simnav record`` folder and write base poses ``T_odom_base`` (3x3 covariances); the depth / RGB-D odometries
+(difodo, vosf) read a TUM RGB-D folder and write the poses ``T_odom_camera`` of the camera's optical frame, the
+frame of the dataset's ``groundtruth.txt`` (6x6 covariances; vosf also writes its scene flow with ``--flow-out``).
+``simnav eval EST GT`` compares such a trajectory with a ground truth: RPE per second, SE(3)-aligned ATE and drift
+per segment length. Both end every user error as one red line and exit code 2.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -21,12 +25,14 @@ from simnav.cli.app import SetOption, _run_dir, _update_latest, app, console, er
 from simnav.errors import ConfigError, SimnavError, UnknownNameError
 
 if TYPE_CHECKING:
-    from simnav.io import Trajectory
+    from simnav.io import RGBDDataset, Trajectory
     from simnav.metrics import ATEResult, DriftResult, RPEResult
-    from simnav.odometry import OdometryEstimate, ScanOdometry
+    from simnav.odometry import FrameOdometry, OdometryEstimate, ScanOdometry
     from simnav.sensors.readings import LaserScan
 
 WHEELS = "wheels"
+VOSF = "vosf"
+RGBD_INDEX = "depth.txt"
 FORMATS = ("carmen", "simnav")
 CARMEN_SUFFIXES = (".clf", ".log")
 DRIVE_FIELDS = ("wheel_radius_m", "wheel_separation_m", "ticks_per_rev")
@@ -40,39 +46,80 @@ UNOBSERVABLE_VARIANCE = 1e12  # written for non-finite variances (directions an 
 @app.command("odometry")
 @user_errors
 def odometry_command(
-    method: Annotated[str, typer.Argument(metavar="METHOD", help="srf, rf2o or wheels.", show_default=False)],
+    method: Annotated[str, typer.Argument(
+        metavar="METHOD", help="Planar: srf, rf2o, wheels. Depth / RGB-D: difodo, vosf.", show_default=False)],
     input_path: Annotated[Path, typer.Argument(
-        metavar="INPUT", help="A CARMEN log (.clf/.log) or a `simnav record` folder.", show_default=False)],
+        metavar="INPUT", help="srf, rf2o, wheels: a CARMEN log (.clf/.log) or a `simnav record` folder. difodo, "
+        "vosf: a TUM RGB-D folder (or a `simnav record` folder holding one).", show_default=False)],
     format_: Annotated[str | None, typer.Option(
-        "--format", help="carmen or simnav (default: a folder is simnav, a file carmen).")] = None,
+        "--format", help="carmen or simnav (default: a folder is simnav, a file carmen); planar methods only.")] = None,
     laser: Annotated[str | None, typer.Option(
         help="Laser: <laser>.clf of a simnav folder, or a CARMEN log's scan stream (default: the first).")] = None,
+    camera: Annotated[str | None, typer.Option(
+        help="difodo, vosf on a `simnav record` folder: the camera subfolder (default: the only one).")] = None,
     out: Annotated[Path | None, typer.Option(
         help="Trajectory file (default: runs/<timestamp>-odometry-<method>/est.txt).")] = None,
+    flow_out: Annotated[Path | None, typer.Option(
+        "--flow-out", help="vosf: write each frame's scene flow, cluster labels and moving mask into this folder "
+        "(see above).")] = None,
+    base: Annotated[bool, typer.Option(
+        "--base", help="difodo, vosf: write the base poses T_odom_base (through camera.yaml's mount) instead of "
+        "the camera's.")] = False,
     settings: SetOption = None,
 ) -> None:
-    """Run an odometry over a dataset and write the base poses T_odom_base as a TUM trajectory.
+    """Run an odometry over a dataset and write its trajectory as a TUM file (est.txt, covariances in est.cov.txt).
 
-    Scan odometries (srf, rf2o) take their settings with --set, e.g. --set max_iterations=10. The wheel odometry
-    uses the ODOM poses of a CARMEN log, or integrates wheels.txt of a simnav folder with robot.yaml's drive
-    (--set wheel_radius_m=0.076 overrides it).
+    Planar odometries write the base poses T_odom_base. Scan odometries (srf, rf2o) take their settings with --set,
+    e.g. --set max_iterations=10. The wheel odometry uses the ODOM poses of a CARMEN log, or integrates wheels.txt of
+    a simnav folder with robot.yaml's drive (--set wheel_radius_m=0.076 overrides it).
+
+    Depth / RGB-D odometries read a TUM RGB-D folder (depth.txt, depth/, optional rgb.txt, rgb/, camera.yaml; the
+    layout `simnav record` writes for each camera): difodo (DIFODO, depth only) and vosf (Joint-VO-SF, RGB-D,
+    odometry and scene flow). They write the poses of the camera's optical frame (z forward, x right, y down),
+    T_odom_camera with odom = the optical frame of the first frame: the frame of the dataset's groundtruth.txt, so
+    `simnav eval est.txt DATASET` compares like with like (--base writes base poses instead). Settings with --set,
+    e.g. --set max_rows=120 runs DIFODO at QQVGA. With --flow-out DIR, vosf writes per frame
+    DIR/scene_flow/<stamp>.npy (float32 3xHxW: displacement in m of each pixel's point since the previous frame,
+    current optical frame, NaN = unknown), DIR/labels/<stamp>.npy (int32 HxW cluster, -1 = no depth),
+    DIR/moving/<stamp>.npy (bool HxW), the index DIR/flow.txt and the clusters' background probabilities in
+    DIR/clusters.txt.
     """
-    from simnav.odometry import SCAN_ODOMETRIES
+    from simnav.odometry import FRAME_ODOMETRIES, SCAN_ODOMETRIES
 
-    methods = sorted([*SCAN_ODOMETRIES, WHEELS])
-    if method not in methods:
-        raise UnknownNameError(f"unknown odometry method '{method}'; available: {', '.join(methods)}")
-    fmt = _input_format(input_path, format_)
-    out_path = out or _run_dir(f"odometry-{method}") / "est.txt"
-    if method == WHEELS:
-        rows = _run_wheels(input_path, fmt, settings, out_path)
+    planar = sorted([*SCAN_ODOMETRIES, WHEELS])
+    frame_methods = sorted(FRAME_ODOMETRIES)
+    if method not in planar and method not in frame_methods:
+        available = ", ".join([*planar, *frame_methods])
+        raise UnknownNameError(f"unknown odometry method '{method}'; available: {available}")
+    if method in frame_methods:
+        _reject_options(method, {"--format": format_ is not None, "--laser": laser is not None})
     else:
-        rows = _run_scans(method, input_path, fmt, laser, settings, out_path)
+        _reject_options(method, {"--camera": camera is not None, "--flow-out": flow_out is not None, "--base": base})
+    if flow_out is not None and method != VOSF:
+        raise ConfigError(f"--flow-out: only {VOSF} computes scene flow, not {method}")
+    if method in frame_methods:
+        folder = _rgbd_folder(input_path, camera)
+        out_path = out or _run_dir(f"odometry-{method}") / "est.txt"
+        rows = _run_frames(method, folder, settings, out_path, flow_out, base)
+    else:
+        fmt = _input_format(input_path, format_)
+        out_path = out or _run_dir(f"odometry-{method}") / "est.txt"
+        if method == WHEELS:
+            rows = _run_wheels(input_path, fmt, settings, out_path)
+        else:
+            rows = _run_scans(method, input_path, fmt, laser, settings, out_path)
     _update_latest(out_path.parent)
     table = Table(title=f"odometry {method}: {out_path}", show_header=False)
     for name, value in rows:
         table.add_row(name, value)
     console.print(table)
+
+
+def _reject_options(method: str, given: dict[str, bool]) -> None:
+    """One clear error for an option that does not apply to ``method``."""
+    for option, is_given in given.items():
+        if is_given:
+            raise ConfigError(f"{option} does not apply to odometry method '{method}'")
 
 
 def _input_format(path: Path, format_: str | None) -> str:
@@ -190,8 +237,10 @@ def _process_scans(odometry: ScanOdometry, scans: list[LaserScan], method: str,
 
 
 def _finite_covariance(covariance: np.ndarray) -> np.ndarray:
-    """The (3, 3) covariance with non-finite variances as UNOBSERVABLE_VARIANCE and their correlations 0."""
-    cov = np.array(covariance, dtype=np.float64).reshape(3, 3)
+    """The (3, 3) or (6, 6) covariance with non-finite variances as UNOBSERVABLE_VARIANCE and their correlations 0."""
+    cov = np.array(covariance, dtype=np.float64)
+    n = 6 if cov.size == 36 else 3
+    cov = cov.reshape(n, n)
     bad = ~np.isfinite(np.diag(cov))
     cov[bad, :] = 0.0
     cov[:, bad] = 0.0
@@ -305,6 +354,174 @@ def _format_error(path: Path, message: str) -> SimnavError:
     from simnav.io import format_error
 
     return format_error(path, None, message)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# simnav odometry difodo / vosf: depth and RGB-D odometries over a TUM RGB-D folder
+
+
+def _rgbd_folder(path: Path, camera: str | None) -> Path:
+    """The TUM RGB-D folder of INPUT: the folder itself, or a camera subfolder of a `simnav record` folder."""
+    if not path.exists():
+        raise _missing(f"{path}: input not found (expected a TUM RGB-D folder with {RGBD_INDEX}, or a `simnav record` "
+                       "folder)")
+    if not path.is_dir():
+        raise ConfigError(f"{path}: expected a TUM RGB-D folder ({RGBD_INDEX}, depth/, rgb.txt, rgb/), got a file")
+    cameras = sorted(p.name for p in path.iterdir() if p.is_dir() and (p / RGBD_INDEX).is_file())
+    if camera is not None:
+        if camera not in cameras:
+            available = ", ".join(cameras) or "none"
+            raise UnknownNameError(f"{path}: no camera '{camera}' (a subfolder holding {RGBD_INDEX}); "
+                                   f"available: {available}")
+        return path / camera
+    if (path / RGBD_INDEX).is_file():
+        return path
+    if len(cameras) == 1:
+        return path / cameras[0]
+    if cameras:
+        raise ConfigError(f"{path}: holds several cameras ({', '.join(cameras)}); choose one with --camera")
+    raise _missing(f"{path}: no {RGBD_INDEX} here or in a camera subfolder (expected a TUM RGB-D folder, or a "
+                   "`simnav record` folder recorded with cameras)")
+
+
+def _run_frames(method: str, folder: Path, settings: list[str] | None, out_path: Path, flow_out: Path | None,
+                base: bool) -> list[tuple[str, str]]:
+    """Runs a depth / RGB-D odometry over a TUM RGB-D folder; returns the summary rows."""
+    from simnav.config import apply_overrides
+    from simnav.io import RGBDDataset
+
+    config = apply_overrides({}, settings, "--set")
+    odometry = _make_frame_odometry(method, config)
+    dataset = RGBDDataset(folder)
+    if len(dataset) == 0:
+        raise _format_error(folder / RGBD_INDEX, "no depth images in this dataset")
+    flows = _FlowWriter(flow_out) if flow_out is not None else None
+    try:
+        run = _process_frames(odometry, dataset, method, out_path, flows, base)
+    finally:
+        if flows is not None:
+            flows.close()
+    runtime_ms = np.asarray(run.runtimes_s) * 1e3
+    h, w = run.image_size
+    rows = [
+        ("input", str(folder)),
+        ("frames", f"{len(runtime_ms)} ({w} x {h})"),
+        ("frames aligned", str(run.measured)),
+        ("degenerate frames", str(run.degenerate)),
+        ("runtime per frame (median / p95)", f"{np.median(runtime_ms):.2f} / {np.percentile(runtime_ms, 95):.2f} ms"),
+        ("poses of", "the base (T_odom_base)" if base else "the camera optical frame (T_odom_camera)"),
+        ("distance travelled", f"{_path_length_3d_m(np.asarray(run.positions)):.2f} m"),
+    ]
+    if run.moving_fractions:
+        rows.append(("moving pixels (mean over frames)", f"{100 * np.mean(run.moving_fractions):.1f} %"))
+    if flows is not None:
+        rows.append(("scene flow", str(flows.root)))
+    return rows
+
+
+def _make_frame_odometry(method: str, config: dict[str, Any]) -> FrameOdometry:
+    """The frame odometry by name; a missing module or an invalid setting becomes one clear error."""
+    from simnav.odometry import FRAME_ODOMETRIES, make_frame_odometry
+
+    try:
+        return make_frame_odometry(method, **config)
+    except SimnavError as err:
+        raise ConfigError(f"--set ({method}): {err}") from None
+    except ImportError as err:
+        where = FRAME_ODOMETRIES[method].replace(":", ".")
+        raise SimnavError(f"odometry '{method}' is not available in this installation ({where}: {err})") from None
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"--set ({method}): {err}") from None
+
+
+@dataclass
+class _FrameRun:
+    """What the summary needs of a run over the frames (the estimates themselves are not kept)."""
+
+    image_size: tuple[int, int] = (0, 0)
+    runtimes_s: list[float] = field(default_factory=list)
+    positions: list[np.ndarray] = field(default_factory=list)
+    measured: int = 0
+    degenerate: int = 0
+    moving_fractions: list[float] = field(default_factory=list)
+
+
+def _process_frames(odometry: FrameOdometry, dataset: RGBDDataset, method: str, out_path: Path,
+                    flows: _FlowWriter | None, base: bool) -> _FrameRun:
+    """Feeds the frames one by one (progress bar on stderr), streaming the poses into the TUM file."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from simnav.io import DataFormatError, TumWriter
+
+    run = _FrameRun()
+    with TumWriter(out_path) as writer, Progress(
+        TextColumn(f"[bold]odometry[/] {method}"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
+        TimeRemainingColumn(), console=err_console, transient=True,
+    ) as bar:
+        task = bar.add_task(method, total=len(dataset))
+        for frame in dataset:
+            run.image_size = tuple(np.shape(frame.depth_m)[:2])
+            started = time.perf_counter()
+            try:
+                estimate = odometry.process(frame)
+            except ValueError as err:  # e.g. an image size the pyramid cannot use
+                raise DataFormatError(f"{dataset.root}: {method} cannot use frame {frame.stamp_s:.6f}: {err}") from None
+            run.runtimes_s.append(time.perf_counter() - started)
+            T = estimate.T_odom_base if base else estimate.T_odom_camera
+            writer.write(estimate.stamp_s, T, _finite_covariance(estimate.covariance))
+            run.positions.append(np.asarray(T)[:3, 3].copy())
+            run.measured += bool(estimate.extra.get("measured", True))
+            run.degenerate += bool(estimate.degenerate)
+            moving = estimate.extra.get("moving_mask")
+            if moving is not None:
+                valid = np.count_nonzero(np.isfinite(frame.depth_m) & (frame.depth_m > 0))
+                run.moving_fractions.append(np.count_nonzero(moving) / max(valid, 1))
+            if flows is not None:
+                flows.write(estimate.stamp_s, estimate.extra)
+            bar.advance(task)
+    return run
+
+
+class _FlowWriter:
+    """Writes vosf's per-frame outputs: scene_flow/, labels/, moving/ (.npy), flow.txt and clusters.txt."""
+
+    KINDS = ("scene_flow", "labels", "moving")
+
+    def __init__(self, root: Path) -> None:
+        if root.exists() and not root.is_dir():
+            raise ConfigError(f"--flow-out: {root} is a file, expected a folder")
+        self.root = root
+        for kind in self.KINDS:
+            (root / kind).mkdir(parents=True, exist_ok=True)
+        self._index = open(root / "flow.txt", "w", encoding="ascii", newline="\n")  # noqa: SIM115
+        self._index.write("# scene flow of Joint-VO-SF: float32 (3, H, W) m, displacement since the previous frame "
+                          "in the current optical frame, NaN = unknown; labels int32 (H, W), -1 = no depth; moving "
+                          "bool (H, W)\n# timestamp scene_flow labels moving\n")
+        self._clusters = open(root / "clusters.txt", "w", encoding="ascii", newline="\n")  # noqa: SIM115
+        self._clusters.write("# background probability of each cluster (1 - b; < 1/3 moving)\n"
+                             "# timestamp p_0 p_1 ... p_K-1\n")
+
+    def write(self, stamp_s: float, extra: dict) -> None:
+        from simnav.io.rgbd_dataset import stamp_text
+
+        stamp = stamp_text(stamp_s)
+        arrays = {"scene_flow": np.asarray(extra["scene_flow_m"], dtype=np.float32),
+                  "labels": np.asarray(extra["labels"], dtype=np.int32),
+                  "moving": np.asarray(extra["moving_mask"], dtype=bool)}
+        for kind, array in arrays.items():
+            np.save(self.root / kind / f"{stamp}.npy", array, allow_pickle=False)
+        self._index.write(f"{stamp} " + " ".join(f"{kind}/{stamp}.npy" for kind in self.KINDS) + "\n")
+        probabilities = np.asarray(extra.get("background_probability", []), dtype=np.float64).ravel()
+        self._clusters.write(" ".join([stamp, *(f"{p:.4f}" for p in probabilities)]) + "\n")
+
+    def close(self) -> None:
+        self._index.close()
+        self._clusters.close()
+
+
+def _path_length_3d_m(positions: np.ndarray) -> float:
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()) if len(positions) > 1 else 0.0
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -39,14 +39,14 @@ class MemoryConfig:
     """
 
     cell_m: float = 0.04
-    half_size_m: float = 2.0
+    half_size_m: float = 1.2
     hit_probability: float = 0.8
     miss_probability: float = 0.4
     occupied_probability: float = 0.8
     decay_s: float = 3.0
     blind_range_m: float = 0.5
     cone_half_angle_rad: float = math.pi / 6 - 0.05
-    cone_range_m: float = 2.0
+    cone_range_m: float = 1.2
     emit_range_m: float = 0.7
 
     def __post_init__(self) -> None:
@@ -78,6 +78,7 @@ class ShortTermMemory:
         self._grids = np.zeros((num_bands, self._n, self._n), dtype=np.float32)
         self._origin: np.ndarray | None = None  # (2,) integer odom cell index of grid cell (0, 0)
         self._last_stamp_s: float | None = None
+        self._cos_cone = math.cos(self.config.cone_half_angle_rad)
 
     def reset(self) -> None:
         """Forget everything."""
@@ -106,8 +107,8 @@ class ShortTermMemory:
         # Free-space evidence in the cone ahead, then hits
         cells_odom = self._cell_centres_odom()
         rel = se2.transform_points(se2.inverse(T_odom_base), cells_odom.reshape(-1, 2)).reshape(self._n, self._n, 2)
-        rng, bearing = np.hypot(rel[..., 0], rel[..., 1]), np.arctan2(rel[..., 1], rel[..., 0])
-        cone = (rng > cfg.blind_range_m) & (rng < cfg.cone_range_m) & (np.abs(bearing) < cfg.cone_half_angle_rad)
+        rng = np.hypot(rel[..., 0], rel[..., 1])
+        cone = (rng > cfg.blind_range_m) & (rng < cfg.cone_range_m) & (rel[..., 0] > rng * self._cos_cone)
         emit = rng < cfg.emit_range_m
         hit_l, miss_l, limit = _logit(cfg.hit_probability), _logit(cfg.miss_probability), 2 * _logit(0.98)
         out = []
