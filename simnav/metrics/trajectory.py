@@ -453,8 +453,8 @@ def _align(
         try:
             R, t, scale = traj.align(ref, correct_scale=with_scale)
             return np.stack(traj.poses_se3), _rigid(R, t), float(scale), align
-        except GeometryException:  # collinear positions: the rotation about the line is not determined
-            pass
+        except GeometryException:  # collinear positions: the orientations fix the rotation about the line
+            return _align_with_axes(T_est, T_gt, with_scale, align)
     try:
         T_gt_est, scale = _planar_umeyama(T_est[:, :3, 3], T_gt[:, :3, 3], with_scale)
         alignment = f"{align}-planar"
@@ -463,6 +463,25 @@ def _align(
     scaled = T_est.copy()
     scaled[:, :3, 3] *= scale
     return T_gt_est @ scaled, T_gt_est, float(scale), alignment
+
+
+def _align_with_axes(T_est: np.ndarray, T_gt: np.ndarray, with_scale: bool, align: str
+                     ) -> tuple[np.ndarray, np.ndarray, float, str]:
+    """Umeyama on the positions plus points 1 m along each pose's x and y axes (a straight 3D run: the positions
+    alone leave the rotation about the line free)."""
+    from evo.core.geometry import GeometryException, umeyama_alignment
+
+    def cloud(T: np.ndarray) -> np.ndarray:
+        return np.concatenate([T[:, :3, 3], T[:, :3, 3] + T[:, :3, 0], T[:, :3, 3] + T[:, :3, 1]]).T
+
+    try:
+        R, t, scale = umeyama_alignment(cloud(T_est), cloud(T_gt), with_scale)
+    except GeometryException:
+        return T_gt[0] @ _inverse(T_est[0]) @ T_est, T_gt[0] @ _inverse(T_est[0]), 1.0, "origin"
+    T_gt_est = _rigid(R, t)
+    scaled = T_est.copy()
+    scaled[:, :3, 3] *= scale
+    return T_gt_est @ scaled, T_gt_est, float(scale), f"{align}-axes"
 
 
 def _is_planar(T: np.ndarray) -> bool:

@@ -1,4 +1,4 @@
-"""Navigation: the 3D-PTG reactive navigator (thesis §6.C) in numpy, with numba kernels for the per-step loops (binning, ND).
+"""Navigation: the 3D-PTG reactive navigator (thesis §6.C) in numpy, with numba kernels for the per-step loops.
 
 * :mod:`simnav.navigation.navigator`: :class:`ReactiveNavigator3D`, one navigation step from obstacle points and a
   pose to a velocity command; waypoints, speed regulation, short-term memory, recovery.

@@ -166,3 +166,15 @@ def test_results_serialise_and_plot(tmp_path):
     assert "stamps_s" not in text
     png = plot_trajectories(est, gt, tmp_path / "plots" / "xy.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_ate_of_a_straight_camera_run_uses_the_orientations():
+    # a camera driving straight ahead along its optical axis (z), tilted, estimated in its first optical frame:
+    # the positions are collinear, so only the orientations fix the rotation about the line
+    T_world_cam0 = se3.from_rpy(-np.pi / 2 - 0.5, 0.0, -np.pi / 2, [1.0, 2.0, 1.1])
+    stamps = np.arange(20) * 0.1
+    T_gt = np.array([T_world_cam0 @ se3.from_rpy(0, 0, 0, [0, 0, 0.05 * k]) for k in range(20)])
+    T_est = np.array([se3.inverse(T_world_cam0) @ T for T in T_gt])
+    result = ate(Trajectory(stamps, T_est), Trajectory(stamps, T_gt))
+    assert result.rmse_m < 1e-6
+    assert result.alignment == "se3-axes"
