@@ -44,6 +44,9 @@ INCIDENT_MERGE_S = 1.0
 CLEARANCE_PERIOD_S = 0.2
 """The robot's clearance to static obstacles is measured at this period, s."""
 
+STOPPED_M_S = 0.05
+"""A contact while the base moved slower than this is one the robot did not drive into (someone walked into it)."""
+
 NARROW_NODE_CLEARANCE_M = 0.75
 """Roadmap nodes closer than this to a static obstacle (doorways) are passed through, not skipped, m."""
 
@@ -107,7 +110,7 @@ class MissionReport:
     avg_speed_m_s: float = 0.0
     max_speed_m_s: float = 0.0
     minor_incidents: dict = field(default_factory=lambda: {"static": 0, "door": 0, "people": 0, "robots": 0,
-                                                           "total": 0})
+                                                           "total": 0, "robot_stopped": 0})
     interventions: int = 0
     min_clearance_m: float = float("inf")
     path_length_ratio: float = float("nan")
@@ -379,13 +382,25 @@ class _MissionRunner:
             if previous is not None and event.stamp_s - previous < INCIDENT_MERGE_S:
                 continue
             kind = _incident_kind(event.kind, event.other)
+            speed = self._speed_before(event.stamp_s)
             r.minor_incidents[kind] += 1
             r.minor_incidents["total"] += 1
+            r.minor_incidents["robot_stopped"] += int(speed < STOPPED_M_S)
             target = _target_at(r.targets, event.stamp_s)
             if target is not None:
                 target.incidents += 1
             r.incidents.append({"time_s": event.stamp_s, "kind": kind, "other": event.other,
-                                "x_m": float(event.position_world[0]), "y_m": float(event.position_world[1])})
+                                "x_m": float(event.position_world[0]), "y_m": float(event.position_world[1]),
+                                "robot_speed_m_s": speed})
+
+    def _speed_before(self, stamp_s: float, window_s: float = 0.25) -> float:
+        """Mean ground-truth speed of the base over ``window_s`` before ``stamp_s``, m/s."""
+        stamps = np.array([t for t, _ in self._gt])
+        i, j = np.searchsorted(stamps, [stamp_s - window_s, stamp_s], side="right")
+        i, j = max(i - 1, 0), max(j - 1, 0)
+        if j <= i:
+            return 0.0
+        return float(np.linalg.norm(self._gt[j][1][:2, 3] - self._gt[i][1][:2, 3]) / (stamps[j] - stamps[i]))
 
     def _odometry_drift(self) -> dict:
         from simnav.io.tum import Trajectory

@@ -253,7 +253,8 @@ def add_pedestrian(spec: mujoco.MjSpec, name: str, shirt: tuple[float, float, fl
     common = dict(group=GROUP_MOVING, contype=CONTYPE_MOVING, conaffinity=0)
     body.add_geom(name=f"{name}_legs", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.1, 0.15, 0.42],
                   pos=[0, 0, 0.42], rgba=[0.15, 0.17, 0.3, 1], **common)
-    body.add_geom(name=f"{name}_torso", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[PEDESTRIAN_RADIUS_M - 0.05, 0.2, 0],
+    # shoulders across y: capsule radius + half-length = the body radius the crowd model keeps clear
+    body.add_geom(name=f"{name}_torso", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.12, PEDESTRIAN_RADIUS_M - 0.12, 0],
                   pos=[0, 0, 1.15], quat=[0.7071068, 0.7071068, 0, 0], rgba=[*shirt, 1], **common)
     body.add_geom(name=f"{name}_head", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.11, 0, 0],
                   pos=[0, 0, PEDESTRIAN_HEIGHT_M - 0.11], rgba=[0.85, 0.68, 0.55, 1], **common)
