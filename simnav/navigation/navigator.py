@@ -70,8 +70,8 @@ class NavigatorConfig:
         recovery_min_s: once backing away, keep at it at least this long before moving forward again, s.
         recovery_duration_s: back away at most this long, then stop and wait, s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
-        stuck_timeout_s: the navigator reports ``stuck`` when the distance to the target has not improved by
-            ``stuck_progress_m`` for this long, s.
+        stuck_timeout_s: the navigator reports ``stuck`` when the distance to the waypoint it aims at has not
+            improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
         stuck_progress_m: progress that resets the stuck timer, m.
         blocked_check_m: within this distance of the goal, check whether the robot would collide if it stood on
             the goal (then it stops there, state ``blocked``, until the goal clears), m.
@@ -215,6 +215,7 @@ class ReactiveNavigator3D:
         self._best_distance = math.inf
         self._best_distance_stamp_s: float | None = None
         self._blocked_since_s: float | None = None
+        self._progress_target = -1
         self._goal_blocked_steps = 0
         for method in getattr(self, "_holonomic", []):
             method.reset()
@@ -364,7 +365,10 @@ class ReactiveNavigator3D:
         return self._goal_blocked_steps >= self.config.blocked_confirm_steps
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
-        d = float(np.linalg.norm(self._waypoints[-1] - T_odom_base[:2, 2]))
+        """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""
+        if self._target != self._progress_target:
+            self._progress_target, self._best_distance_stamp_s = self._target, None
+        d = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
         if self._best_distance_stamp_s is None or d < self._best_distance - self.config.stuck_progress_m:
             self._best_distance, self._best_distance_stamp_s = d, stamp_s
 
