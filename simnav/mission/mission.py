@@ -45,7 +45,8 @@ CLEARANCE_PERIOD_S = 0.2
 """The robot's clearance to static obstacles is measured at this period, s."""
 
 STOPPED_M_S = 0.05
-"""A contact while the base moved slower than this is one the robot did not drive into (someone walked into it)."""
+"""A contact while no point of the robot moved faster than this is one the robot did not drive into (someone walked
+into it), m/s."""
 
 NARROW_NODE_CLEARANCE_M = 0.75
 """Roadmap nodes closer than this to a static obstacle (doorways) are passed through, not skipped, m."""
@@ -199,6 +200,7 @@ class _MissionRunner:
         nodes = self.sim.roadmap.nodes_xy
         self._narrow = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms)) \
             < NARROW_NODE_CLEARANCE_M
+        self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
@@ -394,13 +396,16 @@ class _MissionRunner:
                                 "robot_speed_m_s": speed})
 
     def _speed_before(self, stamp_s: float, window_s: float = 0.25) -> float:
-        """Mean ground-truth speed of the base over ``window_s`` before ``stamp_s``, m/s."""
+        """Fastest speed of any point of the robot over ``window_s`` before ``stamp_s`` (ground truth): the base's
+        speed plus its yaw rate times the robot's circumradius, m/s."""
         stamps = np.array([t for t, _ in self._gt])
         i, j = np.searchsorted(stamps, [stamp_s - window_s, stamp_s], side="right")
         i, j = max(i - 1, 0), max(j - 1, 0)
         if j <= i:
             return 0.0
-        return float(np.linalg.norm(self._gt[j][1][:2, 3] - self._gt[i][1][:2, 3]) / (stamps[j] - stamps[i]))
+        T_i, T_j = se2.from_se3(self._gt[i][1]), se2.from_se3(self._gt[j][1])
+        dx, dy, dyaw = se2.log(se2.inverse(T_i) @ T_j)
+        return float((math.hypot(dx, dy) + abs(dyaw) * self._circumradius_m) / (stamps[j] - stamps[i]))
 
     def _odometry_drift(self) -> dict:
         from simnav.io.tum import Trajectory
