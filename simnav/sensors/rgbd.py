@@ -27,6 +27,7 @@ from simnav.sensors.lidar import RayCaster
 from simnav.sensors.noise import depth_noise, grazing_mask
 from simnav.sensors.presets import resolve_rgbd
 from simnav.sensors.readings import RGBDFrame
+from simnav.world.mjcf import GROUP_ROBOT
 
 log = logging.getLogger(__name__)
 _gl_failure: str | None = None
@@ -235,6 +236,7 @@ class _GLBackend:
         self._model = model
         self._scene = mujoco.MjvScene(model, maxgeom=2000)
         self._option = mujoco.MjvOption()
+        self._option.geomgroup[GROUP_ROBOT] = 0  # the camera does not see its own robot (as the lidars)
         self._cam = mujoco.MjvCamera()
         self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._cam.fixedcamid = cam_id

@@ -129,3 +129,20 @@ def test_without_opengl_cameras_fall_back_to_ray_casting_and_say_so_once():
     lines = out.stdout.split()
     assert lines[0] == "raycast" and float(lines[1]) > 0.5
     assert out.stderr.count("fall back to ray casting") == 1
+
+
+@pytest.mark.parametrize("backend", ["gl", "raycast"])
+def test_the_camera_does_not_see_its_own_robot(backend):
+    # Rhodon's Kinect looks down over its outstretched arm: its own body must not become an obstacle
+    import simnav  # noqa: F401
+    from simnav.robot import load_robot
+    from simnav.sim import SimConfig, Simulator
+    from simnav.world import load_world
+
+    with Simulator(load_world("desks"), load_robot("rhodon"),
+                   SimConfig(pedestrians=0, wanderers=0, depth_backend=backend)) as sim:
+        camera = next(s.name for s in sim.robot.sensors if s.type == "rgbd")
+        frame = sim.capture_now(camera)
+        robot_ids = np.nonzero(sim.index.body_kind == "robot")[0]
+        assert not np.isin(frame.body_id, robot_ids).any()
+        assert (frame.depth_m > 0).mean() > 0.5
