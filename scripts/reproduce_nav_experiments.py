@@ -23,8 +23,7 @@
 
 The scenarios drive the mission runner (:class:`simnav.mission.mission._MissionRunner`) one route at a time: a
 subclass gives it the start pose (as the world's spawn), the route and the end conditions; the control step,
-sensing, pose source (ground truth) and contact bookkeeping are the runner's own. Depth cameras are kept from
-seeing the robot's own body (see :func:`hide_robot_from_cameras`).
+sensing, pose source (ground truth) and contact bookkeeping are the runner's own.
 
     python scripts/reproduce_nav_experiments.py [--runs 20] [--seed 0] [--timeout 90] [--variants ...]
         [--desk-visits 14] [--only door|desks|none] [--long KM] [--jobs N] [--out DIR] [--verbose]
@@ -139,7 +138,6 @@ class ScenarioRunner(_MissionRunner):
     def __init__(self, world: WorldSpec, robot: RobotSpec, settings: MissionSettings,
                  nav_options: dict | None = None) -> None:
         super().__init__(world, robot, settings, None)
-        hide_robot_from_cameras(self.sim)
         if nav_options:  # the same navigator with other options (goal tolerance, grid resolution, margin)
             from simnav.navigation.navigator import ReactiveNavigator3D
 
@@ -231,27 +229,6 @@ class ScenarioRunner(_MissionRunner):
 
     def path_xy(self) -> np.ndarray:
         return np.array([T[:2, 3] for _, T in self._gt])
-
-
-def hide_robot_from_cameras(sim) -> int:
-    """Keep the robot's own body out of its depth cameras' images; returns how many cameras were changed.
-
-    The ray-cast depth backend excludes the robot body, as the lidars do, but the OpenGL backend renders MuJoCo's
-    default geom groups 0-2, and group 2 is the robot: a camera that looks down over the robot's own parts (the
-    Rhodon's Kinect, tilted 50 degrees, sees the tip of the arm) then reports them as obstacles inside the
-    footprint, and the navigator backs away for ever. §6.C.7 masks those pixels ("a blind pixel region"); here
-    the robot's group is switched off in the GL scene options (the fix belongs in simnav.sensors.rgbd._GLBackend).
-    """
-    from simnav.sensors.rgbd import RGBDCamera
-    from simnav.world.mjcf import GROUP_ROBOT
-
-    changed = 0
-    for sensor in sim.sensors:
-        backend = getattr(sensor, "_backend", None) if isinstance(sensor, RGBDCamera) else None
-        if backend is not None and hasattr(backend, "_option"):
-            backend._option.geomgroup[GROUP_ROBOT] = 0
-            changed += 1
-    return changed
 
 
 def with_spawn(world: WorldSpec, x_m: float, y_m: float, yaw_rad: float) -> WorldSpec:
@@ -469,7 +446,6 @@ def run_long(world_name: str, km: float, people: int, seed: int, out_dir: Path |
         robot = with_max_speed(robot, FLAT_SPEED_M_S)
     settings = MissionSettings(targets=100000, seed=seed, sim=SimConfig(pedestrians=people))
     runner = DistanceRunner(world, mission_robot(robot, settings), settings, out_dir, distance_m=km * 1000.0)
-    hide_robot_from_cameras(runner.sim)
     try:
         return runner.run(progress)
     finally:
