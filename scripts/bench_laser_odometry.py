@@ -48,6 +48,8 @@ ROBOT = [
 ]
 WORLDS = {"curved": ("curved", 0), "office": ("office", 0), "polygonal": ("polygonal", 0),
           "dynamic3": ("polygonal", 3), "dynamic5": ("polygonal", 5), "dynamic7": ("polygonal", 7)}
+HELD_OPEN = {"office-static": "office"}
+"""Extra worlds with every door held open: static, like the thesis' maps A-C (reproduce_srf_tables.py)."""
 
 
 @dataclass
@@ -74,8 +76,8 @@ class Sequence:
 
 def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     """Record (or load from the cache) ``seconds`` of scans in a benchmark world."""
-    world_name, wanderers = WORLDS[name]
-    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v4.npz"
+    world_name, wanderers = WORLDS[name] if name in WORLDS else (HELD_OPEN[name], 0)
+    path = CACHE / f"{name}-{seconds:.0f}s-seed{seed}-v5.npz"
     if path.is_file():
         d = np.load(path)
         return Sequence(name, d["stamps_s"], d["ranges_m"], d["gt_xy_yaw"], d["angles_rad"], d["T_base_sensor"],
@@ -83,7 +85,11 @@ def simulate(name: str, seconds: float, seed: int = 0) -> Sequence:
     robot = load_robot("giraff", ROBOT)
     config = SimConfig(pedestrians=0, wanderers=wanderers)
     stamps, ranges, poses = [], [], []
-    with Simulator(load_world(world_name), robot, config, seed=seed) as sim:
+    world = load_world(world_name)
+    if name in HELD_OPEN:
+        world = world.model_copy(update={"doors": [d.model_copy(update={"open_s": 1e9, "phase_s": 0.0})
+                                                   for d in world.doors]})
+    with Simulator(world, robot, config, seed=seed) as sim:
         follower = RoadmapFollower(sim.roadmap, np.array(sim.pose_xy_yaw[:2]), np.random.default_rng(seed),
                                    robot.drive.max_v_m_s, robot.drive.max_w_rad_s)
         scan = sim.capture_now("laser")

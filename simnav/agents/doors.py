@@ -98,21 +98,29 @@ class DoorLeaf:
         tip = self._hinge + self._spec.width_m * np.array([math.cos(self.yaw_rad), math.sin(self.yaw_rad)])
         return np.stack([self._hinge, tip])
 
-    def update(self, t_s: float, dt_s: float, nearby_xy: np.ndarray | None = None) -> None:
+    def update(self, t_s: float, dt_s: float, nearby_xy: np.ndarray | None = None,
+               blockers_xyr: np.ndarray | None = None) -> None:
         """Advance the leaf by ``dt_s`` to time ``t_s``.
 
         Args:
             t_s: simulated time after this update, seconds.
             dt_s: time since the previous update, seconds (>= 0).
             nearby_xy: (P, 2) positions of people and robots (metres) that may open the door, or None.
+            blockers_xyr: (B, 3) circles ``[x, y, radius]`` (metres) the moving leaf must not sweep into (people,
+                robots), or None.
         """
         yaw_before = self.yaw_rad
         near = self._someone_near(nearby_xy)
         if near:
             self._hold_open()
+        held = (self._stage, self._elapsed_s)
         self._elapsed_s += dt_s
         self._advance(near)
-        self._opening = self._opening_now()
+        opening = self._opening_now()
+        if opening != self._opening and self._sweeps_into(self._opening, opening, blockers_xyr):
+            self._stage, self._elapsed_s = held  # the presence sensor pauses the leaf
+        else:
+            self._opening = opening
         self._yaw_rate_rad_s = (self.yaw_rad - yaw_before) / dt_s if dt_s > 0 else 0.0
         self._time_s = t_s
 
@@ -121,6 +129,25 @@ class DoorLeaf:
             return False
         d = np.linalg.norm(np.asarray(nearby_xy, dtype=float).reshape(-1, 2) - self._center, axis=1)
         return bool(np.any(d <= self._spec.auto_open_radius_m))
+
+    def _sweeps_into(self, opening_before: float, opening_after: float, blockers_xyr: np.ndarray | None) -> bool:
+        """Whether moving the leaf between the two openings brings it within the safety clearance of a blocker
+        and closer to it than before."""
+        if blockers_xyr is None or len(blockers_xyr) == 0:
+            return False
+        c = np.asarray(blockers_xyr, dtype=float).reshape(-1, 3)
+        before = self._clearance_m(opening_before, c)
+        after = self._clearance_m(opening_after, c)
+        return bool(np.any((after < self._spec.safety_clearance_m) & (after < before)))
+
+    def _clearance_m(self, opening: float, circles: np.ndarray) -> np.ndarray:
+        """(B,) gap between the leaf at ``opening`` (its thickness included) and each circle, metres."""
+        yaw = self._closed_yaw_rad + opening * self._swing_rad
+        u = np.array([math.cos(yaw), math.sin(yaw)])
+        rel = circles[:, :2] - self._hinge
+        along = np.clip(rel @ u, 0.0, self._spec.width_m)
+        dist = np.linalg.norm(rel - along[:, None] * u, axis=1)
+        return dist - circles[:, 2] - 0.5 * self._spec.thickness_m
 
     def _hold_open(self) -> None:
         if self._stage == DoorStage.OPEN:

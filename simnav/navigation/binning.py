@@ -14,6 +14,7 @@ took a dozen array passes and temporaries per band and PTG, ~1.5 ms a step for 5
   tables are built in :mod:`simnav.navigation.ptgspace`).
 * :func:`effective_obstacle_distance`: the navigator's obstacle distance for the speed regulation.
 * :func:`points_near`: the points near a spot (the navigator's blocked-goal check looks at no other).
+* :func:`merge_bands`: two flat band sets as one (sensed points, then the short-term memory's virtual ones).
 
 Every kernel does the same floating-point operations as the numpy formulation it replaces, so bands, cells, minima
 and distances are identical to the bit. ``@njit(cache=True)``: compiled on first use, then loaded from
@@ -231,3 +232,21 @@ def points_near(xy: np.ndarray, ptr: np.ndarray, cx: float, cy: float,
                 n += 1
         out_ptr[b + 1] = n
     return out[:n].copy(), out_ptr
+
+
+@njit(cache=True)
+def merge_bands(xy: np.ndarray, ptr: np.ndarray, extra_xy: np.ndarray,
+                extra_ptr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(xy (K + E, 2), ptr (B + 1,)): per band, its points of ``xy`` followed by its points of ``extra_xy``."""
+    n_bands = ptr.shape[0] - 1
+    out = np.empty((xy.shape[0] + extra_xy.shape[0], 2), dtype=np.float64)
+    out_ptr = np.zeros(n_bands + 1, dtype=np.int64)
+    n = 0
+    for b in range(n_bands):
+        for src, lo, hi in ((xy, ptr[b], ptr[b + 1]), (extra_xy, extra_ptr[b], extra_ptr[b + 1])):
+            for i in range(lo, hi):
+                out[n, 0] = src[i, 0]
+                out[n, 1] = src[i, 1]
+                n += 1
+        out_ptr[b + 1] = n
+    return out, out_ptr

@@ -28,7 +28,7 @@ import numpy as np
 
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
-from simnav.navigation.binning import effective_obstacle_distance, points_near
+from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
 from simnav.navigation.holonomic import HolonomicInput
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 
@@ -278,15 +278,11 @@ class ReactiveNavigator3D:
         cfg = self.config
         n_bands = len(self.bands)
         xy, ptr = sort_into_bands_flat(points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
-        band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
         if self._memory is not None:
-            virtual = self._memory.update(stamp_s, T_odom_base, band_xy)
-            if any(len(extra) for extra in virtual):
-                band_xy = [np.concatenate([real, extra]) if len(extra) else real
-                           for real, extra in zip(band_xy, virtual, strict=True)]
-                ptr = np.zeros(n_bands + 1, dtype=np.int64)
-                np.cumsum([len(pts) for pts in band_xy], out=ptr[1:])
-                xy = np.concatenate(band_xy)
+            virtual_xy, virtual_ptr = self._memory.update_flat(stamp_s, T_odom_base, xy, ptr)
+            if len(virtual_xy):
+                xy, ptr = merge_bands(xy, ptr, virtual_xy, virtual_ptr)
+        band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
         # TP-NavLimits per PTG: minimum over the bands (eq. 6.4); the bands' cells are found once for all PTGs
         limits = self._spaces[0].tp_limits_all(self._spaces, xy, ptr)
         target_index = self._reachable_target(T_odom_base, limits)

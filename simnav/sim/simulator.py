@@ -238,8 +238,10 @@ class Simulator:
         others = np.vstack([self.crowd.positions_xy, robot_xy[None]])
         self.wanderers.step(dt, others)
         nearby = np.vstack([others, self.wanderers.positions_xy])
+        people = self.crowd.positions_xy
+        blockers = np.vstack([circles, np.column_stack([people, np.full(len(people), self.crowd.radius_m)])])
         for door in self.doors:
-            door.update(self._agent_time_s + dt, dt, nearby)
+            door.update(self._agent_time_s + dt, dt, nearby, blockers)
         self._agent_time_s += dt
         self._pose_agents_at(self.time_s)
 

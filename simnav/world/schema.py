@@ -90,7 +90,9 @@ class Door(FrozenModel):
 
     The leaf turns about ``hinge`` from ``closed_yaw_deg`` (pointing across the doorway) by ``swing_deg``.
     It stays open ``open_s`` seconds, closed ``closed_s`` seconds (phase offset ``phase_s``), takes
-    ``move_s`` to swing, and opens early when a person or robot waits within ``auto_open_radius_m``.
+    ``move_s`` to swing, and opens early when a person or robot waits within ``auto_open_radius_m``. A
+    moving leaf pauses while it would come within ``safety_clearance_m`` of a person or robot (the presence
+    sensor of a powered door).
     """
 
     hinge: Vec2
@@ -104,6 +106,7 @@ class Door(FrozenModel):
     move_s: Positive = 1.5
     phase_s: NonNegative = 0.0
     auto_open_radius_m: NonNegative = 1.2
+    safety_clearance_m: NonNegative = 0.05
 
 
 class Roadmap(FrozenModel):

@@ -103,3 +103,28 @@ def test_phase_shifts_the_schedule() -> None:
     assert leaf.stage == DoorStage.OPENING and leaf.opening == pytest.approx(0.5)
     _run(leaf, 3.5, 4.5, FAR)
     assert leaf.opening == 1.0
+
+
+def test_presence_sensor_pauses_a_leaf_that_would_sweep_into_someone() -> None:
+    leaf = _door()
+    _run(leaf, 0.0, 6.5, FAR)
+    assert leaf.opening == 0.0
+    in_swing = np.array([[1.5, 2.4, 0.2]])  # waits inside the quarter circle the leaf sweeps when opening
+    for k in range(1, 61):
+        leaf.update(6.5 + k * DT, DT, in_swing[:, :2], in_swing)
+        gap = leaf._clearance_m(leaf.opening, in_swing)[0]
+        assert gap >= 0.0  # never touches
+    assert 0.0 < leaf.opening < 1.0 and leaf.yaw_rate_rad_s == 0.0  # paused part-way
+    assert gap < 2 * leaf.spec.safety_clearance_m  # stopped at the edge of its sensing zone
+    stepped_back = np.array([[1.45, 1.2, 0.2]])  # out of the swing, still near enough to keep it opening
+    trace = _run(leaf, 9.5, 11.0, stepped_back[:, :2])
+    assert trace[-1][1] == 1.0
+
+
+def test_presence_sensor_ignores_someone_the_leaf_moves_away_from() -> None:
+    leaf = _door()
+    _run(leaf, 0.0, 6.5, FAR)
+    behind = np.array([[1.45, 1.75, 0.2]])  # on the far side of the closed leaf, touching it
+    for k in range(1, 41):
+        leaf.update(6.5 + k * DT, DT, behind[:, :2], behind)
+    assert leaf.opening == 1.0
