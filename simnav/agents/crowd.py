@@ -49,6 +49,7 @@ YIELD_AFTER_S = 1.5
 FORCE_YIELD_AFTER_S = 4.0
 YIELD_DURATION_S = (1.0, 2.5)
 YIELD_SPEED_FACTOR = 0.5
+ROBOT_PASSING_GAP_M = 0.3
 _NEAR_SLACK_M = 1.0  # the reach, beyond the radius and the move, that the projection keeps around a centre
 
 
@@ -250,7 +251,7 @@ class Crowd:
         self._vel = (resolved - self._pos) / dt_s
         self._pos = resolved
         self._update_yaws(dt_s)
-        self._handle_blocking(dt_s)
+        self._handle_blocking(dt_s, circles)
         self._handle_stuck(segs)
 
     def _wall_pairs(
@@ -353,30 +354,41 @@ class Crowd:
             if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
                 return
 
-    def _handle_blocking(self, dt_s: float) -> None:
-        """Break face-offs (e.g. in a doorway): after a while the lower-priority pedestrian steps back.
+    def _handle_blocking(self, dt_s: float, circles: np.ndarray | None = None) -> None:
+        """Break face-offs (e.g. in a doorway, or with a robot): after a while the pedestrian steps aside.
 
         A pedestrian is blocked while it barely moves and someone stands within BLOCKING_DISTANCE_M ahead
-        (±60° of its desired direction). Blocked for YIELD_AFTER_S, it steps back from the closest one ahead
-        for 1–2.5 s if that one has a higher priority (drawn at spawn); blocked for FORCE_YIELD_AFTER_S, it
-        steps back anyway.
+        (±60° of its desired direction; for a round obstacle such as a robot, the distance between the rims plus
+        twice the pedestrian radius). Blocked by a pedestrian for YIELD_AFTER_S, it steps back from the closest one
+        ahead for 1–2.5 s if that one has a higher priority (drawn at spawn); blocked for FORCE_YIELD_AFTER_S, it
+        steps back anyway. Robots outrank everyone; from one, a pedestrian steps aside towards a spot
+        ROBOT_PASSING_GAP_M beside it, on the right of the way it wanted to go, and walks on past from there.
         """
         self._yield_s = np.maximum(self._yield_s - dt_s, 0.0)
         n = len(self._pos)
-        if n < 2:
+        c = np.zeros((0, 3)) if circles is None else np.asarray(circles, dtype=float).reshape(-1, 3)
+        if n == 0 or n + len(c) < 2:
             return
-        rel = self._pos[None, :, :] - self._pos[:, None, :]
-        dist = np.linalg.norm(rel, axis=2) + np.eye(n) * 1e9
+        others = np.concatenate([self._pos, c[:, :2]])
+        rel = others[None, :, :] - self._pos[:, None, :]
+        dist = np.linalg.norm(rel, axis=2)
+        dist[:, :n] += np.eye(n) * 1e9
+        reach = np.concatenate([np.full(n, BLOCKING_DISTANCE_M), BLOCKING_DISTANCE_M + c[:, 2] - self.radius_m])
         ahead = np.sum(rel * self._dirs[:, None, :], axis=2) >= dist * math.cos(BLOCKING_HALF_ANGLE_RAD)
-        in_way = ahead & (dist < BLOCKING_DISTANCE_M)
+        in_way = ahead & (dist < reach[None, :])
         slow = np.linalg.norm(self._vel, axis=1) < BLOCKED_SPEED_M_S
         blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & np.any(in_way, axis=1)
         self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
         blocker = np.argmin(np.where(in_way, dist, np.inf), axis=1)
-        outranked = self._priority < self._priority[blocker]
+        priority = np.concatenate([self._priority, np.full(len(c), np.inf)])
+        outranked = self._priority < priority[blocker]
         steps_back = (self._blocked_s >= YIELD_AFTER_S) & outranked | (self._blocked_s >= FORCE_YIELD_AFTER_S)
         for k in np.nonzero(steps_back)[0]:
             away = -rel[k, blocker[k]]
+            if blocker[k] >= n:  # a robot: head for a spot beside it, on the right of the way it wanted to go
+                right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
+                beside = c[blocker[k] - n, :2] + (c[blocker[k] - n, 2] + self.radius_m + ROBOT_PASSING_GAP_M) * right
+                away = beside - self._pos[k]
             self._yield_dir[k] = away / max(float(np.linalg.norm(away)), 1e-9)
             self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
             self._blocked_s[k] = 0.0

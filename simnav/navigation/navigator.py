@@ -13,7 +13,8 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
    approach to the final target, then limited in acceleration.
 
 When every path is blocked the robot backs away slowly for a few seconds if the space behind is free, then stops
-and waits (§6.C.6). A target whose distance has not improved for ``stuck_timeout_s`` marks the navigator stuck.
+and waits (§6.C.6); it backs only onto the path it drove along. A target whose distance has not improved for
+``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -70,6 +72,8 @@ class NavigatorConfig:
         recovery_min_s: once backing away, keep at it at least this long before moving forward again, s.
         recovery_duration_s: back away at most this long, then stop and wait, s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
+        recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
+            many seconds: the sensors see little behind the robot, the path it came along was free, s.
         stuck_timeout_s: the navigator reports ``stuck`` when the distance to the waypoint it aims at has not
             improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
         stuck_progress_m: progress that resets the stuck timer, m.
@@ -106,6 +110,7 @@ class NavigatorConfig:
     recovery_min_s: float = 1.0
     recovery_duration_s: float = 3.0
     recovery_clearance_m: float = 0.3
+    recovery_trail_s: float = 20.0
     stuck_timeout_s: float = 30.0
     stuck_progress_m: float = 0.2
     blocked_check_m: float = 2.0
@@ -217,6 +222,7 @@ class ReactiveNavigator3D:
         self._blocked_since_s: float | None = None
         self._progress_target = -1
         self._goal_blocked_steps = 0
+        self._trail: deque[tuple[float, float, float, float]] = deque()  # (stamp, x, y, yaw) of recent poses
         for method in getattr(self, "_holonomic", []):
             method.reset()
         if self._memory is not None:
@@ -271,6 +277,7 @@ class ReactiveNavigator3D:
         self._last_stamp_s = stamp_s
         if len(self._waypoints) == 0 or self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached" if self.goal_reached else "idle")
+        self._remember_pose(stamp_s, T_odom_base)
         self._advance_waypoints(T_odom_base)
         if self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached")
@@ -304,7 +311,7 @@ class ReactiveNavigator3D:
         best = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
         if best is None or best.speed <= 0.0 or recovering:
-            return self._recover(stamp_s, dt, t0, limits, band_xy, target_index)
+            return self._recover(stamp_s, dt, t0, T_odom_base, band_xy, target_index)
         self._blocked_since_s = None
         space = self._spaces[best.ptg]
         v, w = space.command(best.k)
@@ -450,18 +457,20 @@ class ReactiveNavigator3D:
         return v, w
 
     # --------------------------------------------------------------------------------------------- recovery
-    def _recover(self, stamp_s: float, dt: float, t0: float, limits: list[np.ndarray], band_xy: list[np.ndarray],
+    def _recover(self, stamp_s: float, dt: float, t0: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray],
                  target_index: int) -> NavCommand:
         """Every path blocked: back away slowly while the space behind is free, then stop and wait (§6.C.6)."""
         cfg = self.config
         if self._blocked_since_s is None:
             self._blocked_since_s = stamp_s
-        if stamp_s - self._blocked_since_s < cfg.recovery_duration_s and self._behind_is_free(band_xy):
+        if (stamp_s - self._blocked_since_s < cfg.recovery_duration_s and self._behind_is_free(band_xy)
+                and self._behind_is_trail(T_odom_base)):
             return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "recovering", target_index)
         return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
 
     def _behind_is_free(self, band_xy: list[np.ndarray]) -> bool:
-        """Whether every band's section can slide straight back by ``recovery_clearance_m``."""
+        """Whether no sensed or remembered point lies where any band's section slides straight back by
+        ``recovery_clearance_m``."""
         reach = self.config.recovery_clearance_m
         for band, pts in zip(self.bands, band_xy, strict=True):
             if len(pts) == 0:
@@ -473,6 +482,25 @@ class ReactiveNavigator3D:
                 return False
         return True
 
+    def _remember_pose(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
+        """Keep the poses of the last ``recovery_trail_s`` seconds, one per 2 cm or 3 degrees of motion."""
+        x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
+        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
+        trail = self._trail
+        if not trail or math.hypot(x - trail[-1][1], y - trail[-1][2]) >= _TRAIL_STEP_M \
+                or abs(_wrap(yaw - trail[-1][3])) >= _TRAIL_STEP_RAD:
+            trail.append((stamp_s, x, y, yaw))
+        while trail and trail[0][0] < stamp_s - self.config.recovery_trail_s:
+            trail.popleft()
+
+    def _behind_is_trail(self, T_odom_base: np.ndarray) -> bool:
+        """Whether the robot, moved straight back by ``recovery_clearance_m``, stands where it stood recently with
+        about the same heading (within 0.1 m and 20 degrees)."""
+        back = T_odom_base @ np.array([-self.config.recovery_clearance_m, 0.0, 1.0])
+        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
+        return any(math.hypot(x - back[0], y - back[1]) <= 0.1 and abs(_wrap(a - yaw)) <= math.radians(20)
+                   for _, x, y, a in self._trail)
+
     # ---------------------------------------------------------------------------------------------- output
     def _output(self, v: float, w: float, dt: float, t0: float, state: str, target_index: int = -1, ptg: str = "",
                 k: int = -1, free: float = 0.0, speed: float = 0.0) -> NavCommand:
@@ -482,3 +510,12 @@ class ReactiveNavigator3D:
                  and self._last_stamp_s - self._best_distance_stamp_s > self.config.stuck_timeout_s
                  and state not in ("reached", "idle"))
         return NavCommand(v, w, state, stuck, target_index, ptg, k, free, speed, time.perf_counter() - t0)
+
+
+_TRAIL_STEP_M = 0.02
+_TRAIL_STEP_RAD = math.radians(3)
+
+
+def _wrap(angle_rad: float) -> float:
+    """Angle wrapped to (-pi, pi]."""
+    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))

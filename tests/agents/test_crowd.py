@@ -180,3 +180,20 @@ def test_pedestrians_cross_a_one_metre_doorway_both_ways() -> None:
         assert _wall_distances(crowd.positions_xy, walls).min() >= crowd.radius_m - 1e-6
     assert np.all((x_min < 5.0) & (x_max > 5.0))
     assert np.all(travelled > 60.0)
+
+
+def test_a_pedestrian_walks_around_a_robot_standing_in_its_way() -> None:
+    # head-on, dead centre: the social forces alone balance and pin the pedestrian in front of the robot
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [15.0, 0.0]]), [(0, 1)])
+    corridor = np.array([[[-1.0, -1.0], [16.0, -1.0]], [[-1.0, 1.0], [16.0, 1.0]]])  # 2 m wide
+    crowd = Crowd(roadmap, corridor, 1, np.random.default_rng(1))
+    goal_xy = roadmap.nodes_xy[crowd.goals[0]]
+    robot = np.array([[7.5, 0.0, 0.35]])
+    side = np.sign(goal_xy[0] - 7.5)
+    passed_s = None
+    for k in range(int(30.0 / DT)):
+        crowd.step(DT, circles=robot, circle_velocities=np.zeros((1, 2)))
+        assert np.linalg.norm(crowd.positions_xy[0] - robot[0, :2]) >= crowd.radius_m + 0.35 - 1e-6
+        if passed_s is None and side * (crowd.positions_xy[0, 0] - 7.5) > 0.5:
+            passed_s = k * DT
+    assert passed_s is not None and passed_s < 25.0

@@ -9,7 +9,7 @@ import pytest
 
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, sort_into_bands
-from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
+from simnav.navigation.navigator import NavCommand, NavigatorConfig, ReactiveNavigator3D
 from simnav.navigation.ptgspace import PTGSpace
 
 BASE = Band("base", 0.0, 0.5, np.array([[0.3, -0.3], [0.3, 0.3], [-0.3, 0.3], [-0.3, -0.3]]))
@@ -93,14 +93,30 @@ def test_a_goal_beyond_a_long_wall_is_searched_for_without_touching_the_wall(cac
     assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
 
 
-def test_an_obstacle_inside_the_footprint_makes_the_robot_back_away(cache_dir) -> None:
-    nav = make_nav(cache_dir)
+def _drive_in_then_blocked(nav: ReactiveNavigator3D, yaw_after_rad: float) -> NavCommand:
+    """The robot drives 0.6 m along +x (free), turns to ``yaw_after_rad``; then a point appears inside its base."""
     nav.set_target((3.0, 0.0))
-    cmd = nav.step(0.0, np.eye(3), np.array([[0.2, 0.0, 0.2]]))
-    for k in range(1, 5):
-        cmd = nav.step(0.05 * k, np.eye(3), np.array([[0.2, 0.0, 0.2]]))
+    t = 0.0
+    for k in range(31):
+        t = 0.05 * k
+        nav.step(t, se2.from_xy_yaw(0.02 * k, 0.0, 0.0), np.zeros((0, 3)))
+    T = se2.from_xy_yaw(0.6, 0.0, yaw_after_rad)
+    for k in range(1, 31):  # 1.5 s: braking from the drive, then recovery
+        cmd = nav.step(t + 0.05 * k, T, np.array([[0.2, 0.0, 0.2]]))
+    return cmd
+
+
+def test_an_obstacle_inside_the_footprint_makes_the_robot_back_away_along_its_path(cache_dir) -> None:
+    cmd = _drive_in_then_blocked(make_nav(cache_dir), 0.0)
     assert cmd.state == "recovering"
     assert cmd.v_m_s < 0.0
+
+
+def test_the_robot_does_not_back_into_space_it_has_not_driven_through(cache_dir) -> None:
+    # after turning 90 degrees the space behind was never driven through (nor seen: lidars look ahead)
+    cmd = _drive_in_then_blocked(make_nav(cache_dir), math.pi / 2)
+    assert cmd.state == "waiting"
+    assert cmd.v_m_s == pytest.approx(0.0)
 
 
 def test_a_point_above_the_low_band_only_blocks_the_band_it_is_in(cache_dir) -> None:
@@ -170,3 +186,4 @@ def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
     nav = make_nav(cache_dir)
     with pytest.raises(ValueError, match="waypoints"):
         nav.set_waypoints(np.array([[np.nan, 0.0]]))
+
