@@ -488,7 +488,7 @@ class ReactiveNavigator3D:
         yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
         trail = self._trail
         if not trail or math.hypot(x - trail[-1][1], y - trail[-1][2]) >= _TRAIL_STEP_M \
-                or abs(_wrap(yaw - trail[-1][3])) >= _TRAIL_STEP_RAD:
+                or abs(se2.wrap_angle(yaw - trail[-1][3])) >= _TRAIL_STEP_RAD:
             trail.append((stamp_s, x, y, yaw))
         while trail and trail[0][0] < stamp_s - self.config.recovery_trail_s:
             trail.popleft()
@@ -496,10 +496,14 @@ class ReactiveNavigator3D:
     def _behind_is_trail(self, T_odom_base: np.ndarray) -> bool:
         """Whether the robot, moved straight back by ``recovery_clearance_m``, stands where it stood recently with
         about the same heading (within 0.1 m and 20 degrees)."""
+        if not self._trail:
+            return False
         back = T_odom_base @ np.array([-self.config.recovery_clearance_m, 0.0, 1.0])
         yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
-        return any(math.hypot(x - back[0], y - back[1]) <= 0.1 and abs(_wrap(a - yaw)) <= math.radians(20)
-                   for _, x, y, a in self._trail)
+        trail = np.array(self._trail)
+        near = np.hypot(trail[:, 1] - back[0], trail[:, 2] - back[1]) <= 0.1
+        aligned = np.abs(se2.wrap_angle(trail[:, 3] - yaw)) <= math.radians(20)
+        return bool(np.any(near & aligned))
 
     # ---------------------------------------------------------------------------------------------- output
     def _output(self, v: float, w: float, dt: float, t0: float, state: str, target_index: int = -1, ptg: str = "",
@@ -514,8 +518,3 @@ class ReactiveNavigator3D:
 
 _TRAIL_STEP_M = 0.02
 _TRAIL_STEP_RAD = math.radians(3)
-
-
-def _wrap(angle_rad: float) -> float:
-    """Angle wrapped to (-pi, pi]."""
-    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))
