@@ -28,7 +28,7 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from simnav.geometry import se3  # noqa: E402
-from simnav.geometry.camera import R_BODY_OPTICAL  # noqa: E402
+from simnav.geometry.camera import R_BODY_OPTICAL, box_room_depth  # noqa: E402
 from simnav.odometry.difodo import DIFODO  # noqa: E402
 from simnav.sensors.readings import RGBDFrame  # noqa: E402
 
@@ -50,18 +50,7 @@ def intrinsics(height: int, width: int) -> np.ndarray:
 
 def render(T_world_camera: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) float32 z-depth of the room seen from the optical frame pose ``T_world_camera``, m."""
-    h, w = shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
-    d, o = rays @ T_world_camera[:3, :3].T, T_world_camera[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        depth = np.nanmin(np.maximum((ROOM[0] - o) * inv, (ROOM[1] - o) * inv), axis=-1)
-        for lo, hi in BOXES:
-            t1, t2 = (lo - o) * inv, (hi - o) * inv
-            t_in, t_out = np.nanmax(np.minimum(t1, t2), axis=-1), np.nanmin(np.maximum(t1, t2), axis=-1)
-            depth = np.where((t_out >= t_in) & (t_in > 1e-6) & (t_in < depth), t_in, depth)
-    return depth.astype(np.float32)
+    return box_room_depth(T_world_camera, K, shape, ROOM, BOXES)[0].astype(np.float32)
 
 
 def base_poses(n: int) -> list[np.ndarray]:

@@ -200,3 +200,33 @@ class PinholeCamera:
             cx=(self.cx + 0.5) * sx - 0.5,
             cy=(self.cy + 0.5) * sy - 0.5,
         )
+
+
+def box_room_depth(T_world_camera: np.ndarray, K: np.ndarray, shape: tuple[int, int], room: ArrayLike,
+                   boxes: ArrayLike = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Exact z-depth of a room of axis-aligned boxes, seen from inside: synthetic frames with known geometry.
+
+    Args:
+        T_world_camera: (4, 4) pose of the optical frame in the world.
+        K: (3, 3) intrinsics.
+        shape: image (height, width).
+        room: (2, 3) opposite corners ``[min, max]`` of the room (the camera is inside), m.
+        boxes: (B, 2, 3) corners ``[min, max]`` of solid boxes in the room, m.
+
+    Returns:
+        (H, W) z-depth (float64, m; the ray parameter, as the optical z of every ray is 1) and (H, W, 3) world
+        points hit.
+    """
+    h, w = shape
+    room = np.asarray(room, dtype=np.float64)
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
+    d, o = rays @ T_world_camera[:3, :3].T, T_world_camera[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        depth = np.nanmin(np.maximum((room[0] - o) * inv, (room[1] - o) * inv), axis=-1)  # leaving the room
+        for lo, hi in np.asarray(boxes, dtype=np.float64).reshape(-1, 2, 3):
+            t1, t2 = (lo - o) * inv, (hi - o) * inv
+            t_in, t_out = np.nanmax(np.minimum(t1, t2), axis=-1), np.nanmin(np.maximum(t1, t2), axis=-1)
+            depth = np.where((t_out >= t_in) & (t_in > 1e-6) & (t_in < depth), t_in, depth)
+    return depth, o + d * depth[..., None]

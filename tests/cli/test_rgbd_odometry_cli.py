@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from simnav.cli import app
 from simnav.geometry import se3
-from simnav.geometry.camera import R_BODY_OPTICAL
+from simnav.geometry.camera import R_BODY_OPTICAL, box_room_depth
 from simnav.io import RGBDDatasetWriter, TumWriter, read_tum, read_tum_covariance, sidecar_path
 from simnav.sensors.readings import RGBDFrame
 
@@ -31,17 +31,7 @@ T_BASE_CAMERA = se3.from_rotation_translation(R_BODY_OPTICAL, [0.1, 0.0, 1.0])
 
 def _render(T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 z-depth (m) and (H, W, 3) uint8 colour (a 0.25 m 3D checker) seen from an optical frame."""
-    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
-    d, o = rays @ T_world_camera[:3, :3].T, T_world_camera[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        depth = np.nanmin(np.maximum((ROOM[0] - o) * inv, (ROOM[1] - o) * inv), axis=-1)
-        for lo, hi in BOXES:
-            t1, t2 = (lo - o) * inv, (hi - o) * inv
-            t_in, t_out = np.nanmax(np.minimum(t1, t2), axis=-1), np.nanmin(np.maximum(t1, t2), axis=-1)
-            depth = np.where((t_out >= t_in) & (t_in > 1e-6) & (t_in < depth), t_in, depth)
-    hit = o + d * depth[..., None]
+    depth, hit = box_room_depth(T_world_camera, K, (H, W), ROOM, BOXES)
     checker = np.floor(hit / 0.25 + 1e-6).astype(np.int64).sum(axis=-1) % 2
     grey = (70 + 110 * checker + 40 * np.cos(hit[..., 0] + 2 * hit[..., 1])).clip(0, 255).astype(np.uint8)
     return depth.astype(np.float32), np.repeat(grey[..., None], 3, axis=-1)

@@ -13,7 +13,7 @@ import pytest
 
 from simnav.errors import ConfigError
 from simnav.geometry import se3
-from simnav.geometry.camera import R_BODY_OPTICAL
+from simnav.geometry.camera import R_BODY_OPTICAL, box_room_depth
 from simnav.odometry.depth_pyramid import LevelCamera, gated_downsample, plan_pyramid, warp_depth
 from simnav.odometry.difodo import DIFODO, DifodoConfig
 from simnav.sensors.readings import RGBDFrame
@@ -42,21 +42,7 @@ def intrinsics(height: int, width: int) -> np.ndarray:
 
 def render(T_world_camera: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) float32 z-depth of the room seen from optical frame pose ``T_world_camera``, m."""
-    h, w = shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
-    d = rays @ T_world_camera[:3, :3].T  # optical z of every ray is 1, so the ray parameter is the depth
-    o = T_world_camera[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        lo, hi = (ROOM[0] - o) * inv, (ROOM[1] - o) * inv
-        depth = np.nanmin(np.maximum(lo, hi), axis=-1)  # leaving the room
-        for box in BOXES:
-            t1, t2 = (box[0] - o) * inv, (box[1] - o) * inv
-            t_in, t_out = np.nanmax(np.minimum(t1, t2), axis=-1), np.nanmin(np.maximum(t1, t2), axis=-1)
-            hit = (t_out >= t_in) & (t_in > 1e-6) & (t_in < depth)
-            depth = np.where(hit, t_in, depth)
-    return depth.astype(np.float32)
+    return box_room_depth(T_world_camera, K, shape, ROOM, BOXES)[0].astype(np.float32)
 
 
 def frame(T_world_base: np.ndarray, stamp_s: float, shape: tuple[int, int] = (240, 320), noise_k: float = 0.0,
