@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
@@ -28,10 +28,12 @@ import simnav
 from simnav.config import FrozenModel, dump_yaml
 from simnav.geometry import se2
 from simnav.io import TumWriter
+from simnav.mission.observer import MissionFrame, MissionObserver
 from simnav.mission.pose import PoseSource
 from simnav.navigation.bands import planar_bands, robot_bands
 from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
 from simnav.navigation.sensing import SensedObstacles
+from simnav.robot.interface import RobotInterface
 from simnav.robot.spec import RobotSpec
 from simnav.sim import SimConfig, Simulator
 from simnav.sim.robot import SimRobot
@@ -167,27 +169,38 @@ def mission_sim_config(settings: MissionSettings) -> SimConfig:
     return settings.sim.model_copy(update={"lockstep": True})
 
 
+RobotFactory = Callable[[Simulator], RobotInterface]
+"""Makes the robot a mission commands from its simulator: :class:`SimRobot` by default; hardware-in-the-loop
+wraps the simulator so the base moves by what real motors measure (see :mod:`simnav.hardware`)."""
+
+
 def run_mission(world: WorldSpec, robot: RobotSpec, settings: MissionSettings, out_dir: Path | None = None,
-                progress: Callable[[MissionProgress], None] | None = None) -> MissionReport:
+                progress: Callable[[MissionProgress], None] | None = None,
+                observers: Sequence[MissionObserver] = (), robot_factory: RobotFactory | None = None) -> MissionReport:
     """Run a mission and (with ``out_dir``) write its report, trajectories and plot.
+
+    Args:
+        observers: called before the first step, after every control step and at the end (a viewer).
+        robot_factory: the robot interface to command (default: the simulated robot).
 
     Returns:
         The report; its ``targets`` rows list every target drawn, reached or not.
     """
-    runner = _MissionRunner(world, robot, settings, out_dir)
+    runner = _MissionRunner(world, robot, settings, out_dir, robot_factory)
     try:
-        return runner.run(progress)
+        return runner.run(progress, observers)
     finally:
         runner.close()
 
 
 class _MissionRunner:
-    def __init__(self, world: WorldSpec, robot: RobotSpec, settings: MissionSettings, out_dir: Path | None) -> None:
+    def __init__(self, world: WorldSpec, robot: RobotSpec, settings: MissionSettings, out_dir: Path | None,
+                 robot_factory: RobotFactory | None = None) -> None:
         self.world, self.robot_spec, self.settings = world, robot, settings
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self.pose = PoseSource(settings.pose_source, robot)
         self.sim = Simulator(world, robot, mission_sim_config(settings), seed=settings.seed)
-        self.robot = SimRobot(self.sim)
+        self.robot = (robot_factory or SimRobot)(self.sim)
         bands = robot_bands(robot) if settings.nav == "3d" else planar_bands(robot)
         nav_cfg = NavigatorConfig(memory=settings.memory, stuck_timeout_s=settings.stuck_timeout_s)
         drive = robot.drive
@@ -208,10 +221,26 @@ class _MissionRunner:
         self._settle_steps = 0
 
     def close(self) -> None:
+        self.robot.stop()
+        close = getattr(self.robot, "close", None)
+        if close is not None:
+            close()
         self.sim.close()
 
     # ------------------------------------------------------------------------------------------------- loop
-    def run(self, progress: Callable[[MissionProgress], None] | None) -> MissionReport:
+    def run(self, progress: Callable[[MissionProgress], None] | None,
+            observers: Sequence[MissionObserver] = ()) -> MissionReport:
+        for obs in observers:
+            obs.start(self.world, self.robot_spec, self.sim, self.nav)
+        try:
+            self._loop(progress, observers)
+        finally:
+            for obs in observers:
+                obs.finish(self.report)
+        return self.report
+
+    def _loop(self, progress: Callable[[MissionProgress], None] | None,
+              observers: Sequence[MissionObserver]) -> None:
         s, started = self.settings, time.perf_counter()
         self.pose.anchor(0.0, self._true_pose())
         self._record_gt()
@@ -219,6 +248,8 @@ class _MissionRunner:
         route = self._new_target()
         while not self._finished():
             cmd = self._control_step()
+            for obs in observers:
+                obs.step(self._frame(cmd))
             self._record_gt()
             if self.sim.time_s >= next_clearance:
                 self._measure_clearance()
@@ -236,7 +267,6 @@ class _MissionRunner:
                 progress(MissionProgress(self.sim.time_s, self._targets_done(), self.report.targets_reached,
                                          self.report.distance_m))
         self._finish(time.perf_counter() - started)
-        return self.report
 
     def _finished(self) -> bool:
         s = self.settings
@@ -250,7 +280,8 @@ class _MissionRunner:
     def _control_step(self):
         # Readings since the last step: odometry and obstacle points
         T_true = self._true_pose()
-        for reading in self.robot.poll_readings():
+        readings = self.robot.poll_readings()
+        for reading in readings:
             self.pose.feed(reading)
             T_at = (se2.from_se3(self.sim.T_world_base_at(reading.stamp_s)) if self.pose.is_ground_truth
                     else self.pose.T_world_base())
@@ -258,11 +289,17 @@ class _MissionRunner:
         # Navigate from the estimated pose
         now = self.robot.now_s()
         T_est = self.pose.T_world_base(T_true)
-        cmd = self.nav.step(now, T_est, self.obstacles.points_base(now, T_est))
+        points_base = self.obstacles.points_base(now, T_est)
+        cmd = self.nav.step(now, T_est, points_base)
         self._step_times.append(cmd.runtime_s)
+        self._last_step = (T_est, points_base, readings)
         self.robot.send_velocity(cmd.v_m_s, cmd.w_rad_s)
         self.robot.wait_next_period()
         return cmd
+
+    def _frame(self, cmd) -> MissionFrame:
+        T_est, points_base, readings = self._last_step
+        return MissionFrame(self.sim.time_s, self._true_pose(), T_est, cmd, readings, points_base, self._route_xy)
 
     # ---------------------------------------------------------------------------------------------- targets
     def _new_target(self) -> list[int]:
@@ -284,6 +321,7 @@ class _MissionRunner:
     def _follow(self, route: list[int]) -> None:
         """Hand a roadmap route to the navigator; narrow nodes (doorways) must be passed through."""
         narrow = self._narrow[route]
+        self._route_xy = self.sim.roadmap.nodes_xy[route].copy()
         self.nav.set_waypoints(self.sim.roadmap.nodes_xy[route], allow_skip=~narrow,
                                allowed_distance_m=np.where(narrow, NARROW_NODE_TOLERANCE_M,
                                                            self.nav.config.waypoint_allowed_distance_m))
