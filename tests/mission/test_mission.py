@@ -74,3 +74,75 @@ def test_bad_options_are_one_clear_error(args, message):
     assert result.returncode == 2
     assert message in result.stderr
     assert "Traceback" not in result.stderr + result.stdout
+
+
+class _Watcher:
+    """Records what a mission shows its observers."""
+
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+        self.frames = []
+
+    def start(self, world, robot, sim, navigator) -> None:
+        self.calls.append("start")
+        self.sim = sim
+
+    def step(self, frame) -> None:
+        self.frames.append(frame)
+
+    def finish(self, report) -> None:
+        self.calls.append("finish")
+        self.report = report
+
+
+class _CountingRobot:
+    """The simulated robot, counting the commands it gets (a robot factory's product)."""
+
+    def __init__(self, sim) -> None:
+        from simnav.sim.robot import SimRobot
+
+        self.inner, self.sent, self.closed = SimRobot(sim), 0, False
+        self.control_period_s = self.inner.control_period_s
+
+    def now_s(self):
+        return self.inner.now_s()
+
+    def send_velocity(self, v_m_s, w_rad_s):
+        self.sent += 1
+        self.inner.send_velocity(v_m_s, w_rad_s)
+
+    def poll_readings(self):
+        return self.inner.poll_readings()
+
+    def wait_next_period(self):
+        self.inner.wait_next_period()
+
+    def stop(self):
+        self.inner.stop()
+
+    def close(self):
+        self.closed = True
+
+
+def test_observers_see_every_step_and_the_robot_factory_drives_the_mission():
+    world, robot = load_world("polygonal"), load_robot("giraff")
+    settings = MissionSettings(targets=1, seed=3, sim={"pedestrians": 0, "wanderers": 0})
+    watcher, robots = _Watcher(), []
+
+    def factory(sim):
+        robots.append(_CountingRobot(sim))
+        return robots[0]
+
+    report = run_mission(world, mission_robot(robot, settings), settings, observers=[watcher], robot_factory=factory)
+    assert report.targets_reached == 1
+    assert watcher.calls == ["start", "finish"] and watcher.report is report
+    frames = watcher.frames
+    assert len(frames) == robots[0].sent > 10 and robots[0].closed
+    assert np.all(np.diff([f.time_s for f in frames]) > 0)
+    assert frames[-1].time_s == pytest.approx(report.duration_s)
+    last = frames[-1]
+    assert last.T_world_base.shape == (3, 3) and last.T_world_est.shape == (3, 3)
+    assert np.allclose(last.waypoints_world[-1], [report.targets[0].x_m, report.targets[0].y_m])
+    assert last.points_base.ndim == 2 and last.points_base.shape[1] == 3
+    assert sum(len(f.readings) for f in frames) > len(frames)  # lidar, wheels, ...
+    assert any(f.command.state == "navigating" for f in frames)
