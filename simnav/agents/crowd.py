@@ -50,6 +50,7 @@ FORCE_YIELD_AFTER_S = 4.0
 YIELD_DURATION_S = (1.0, 2.5)
 YIELD_SPEED_FACTOR = 0.5
 ROBOT_PASSING_GAP_M = 0.3
+OCCUPIED_MARGIN_M = 0.1  # a roadmap node closer than this to a robot's rim is taken by the robot
 _NEAR_SLACK_M = 1.0  # the reach, beyond the radius and the move, that the projection keeps around a centre
 
 
@@ -234,7 +235,7 @@ class Crowd:
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
         self._time_s += dt_s
-        self._update_plans(dt_s)
+        self._update_plans(dt_s, circles)
         dirs, drive_speeds = self._desired()
         segs, ped_idx, seg_idx = self._wall_pairs(self._pos, dynamic_segments)
         acc = social_force_pairs(
@@ -330,15 +331,28 @@ class Crowd:
     def _set_target(self, k: int) -> None:
         self._target[k] = self._paths[k][self._wp[k]]
 
-    def _update_plans(self, dt_s: float) -> None:
+    def _update_plans(self, dt_s: float, circles: np.ndarray | None = None) -> None:
         self._pause_s[self._arrived] -= dt_s
         for k in np.nonzero(self._arrived & (self._pause_s <= 0.0))[0]:
             self._plan(int(k), int(self._goals[k]))
         last = self._wp == self._last_wp
         dist = np.linalg.norm(self._target - self._pos, axis=1)
-        reached = ~self._arrived & (dist < np.where(last, GOAL_REACHED_M, WAYPOINT_REACHED_M))
+        reach = np.where(last, GOAL_REACHED_M, WAYPOINT_REACHED_M) + self._occupied_by_m(circles)
+        reached = ~self._arrived & (dist < reach)
         for k in np.nonzero(reached)[0]:
             self._advance(int(k))
+
+    def _occupied_by_m(self, circles: np.ndarray | None) -> np.ndarray:
+        """(N,) how much farther from its target a pedestrian counts as there: the radius of a round obstacle
+        (a robot) standing on the target plus the pedestrian's, or 0. Nobody walks onto someone else's spot, so
+        without this, people whose next roadmap node a robot stands on circle it for ever."""
+        if circles is None or len(circles) == 0 or len(self._pos) == 0:
+            return np.zeros(len(self._pos))
+        c = np.asarray(circles, dtype=float).reshape(-1, 3)
+        gap = np.linalg.norm(self._target[:, None, :] - c[None, :, :2], axis=2) - c[None, :, 2] - self.radius_m
+        covering = gap < OCCUPIED_MARGIN_M
+        extra = np.where(covering, c[None, :, 2] + self.radius_m, 0.0)
+        return extra.max(axis=1)
 
     def _advance(self, k: int) -> None:
         path = self._paths[k]

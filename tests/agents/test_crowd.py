@@ -197,3 +197,21 @@ def test_a_pedestrian_walks_around_a_robot_standing_in_its_way() -> None:
         if passed_s is None and side * (crowd.positions_xy[0, 0] - 7.5) > 0.5:
             passed_s = k * DT
     assert passed_s is not None and passed_s < 25.0
+
+
+def test_people_pass_a_robot_standing_on_their_next_roadmap_node() -> None:
+    # a robot parked on the middle node: nobody can step onto it, so it counts as passed from beside the robot
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [7.5, 0.0], [15.0, 0.0]]), [(0, 1), (1, 2)])
+    open_floor = np.zeros((0, 2, 2))
+    crowd = Crowd(roadmap, open_floor, 4, np.random.default_rng(3))
+    robot = np.array([[7.5, 0.0, 0.35]])
+    heading_for_robot_s = np.zeros(crowd.count)
+    longest_s = np.zeros(crowd.count)
+    for _ in range(int(60.0 / DT)):
+        crowd.step(DT, circles=robot, circle_velocities=np.zeros((1, 2)))
+        on_robot = np.linalg.norm(crowd.waypoints_xy - robot[0, :2], axis=1) < 1e-9
+        heading_for_robot_s = np.where(on_robot, heading_for_robot_s + DT, 0.0)
+        longest_s = np.maximum(longest_s, heading_for_robot_s)
+        assert np.all(np.linalg.norm(crowd.positions_xy - robot[0, :2], axis=1) >= crowd.radius_m + 0.35 - 1e-6)
+    assert np.all(longest_s > 0)  # everyone's route went through the robot's node ...
+    assert np.all(longest_s < 10.0)  # ... and nobody kept heading for it
