@@ -178,5 +178,7 @@ def main() -> None:
 
 
 # Commands defined in other modules register themselves on `app` when imported.
+from simnav.cli import hw as _hw_commands  # noqa: E402, F401
 from simnav.cli import mission as _mission_commands  # noqa: E402, F401
 from simnav.cli import odometry as _odometry_commands  # noqa: E402, F401
+from simnav.cli import view as _view_commands  # noqa: E402, F401

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Annotated
 
@@ -29,6 +30,16 @@ def mission(
     nav: Annotated[str, typer.Option(help="3d: one prism per robot section; 2d: the whole robot as one prism.")
                    ] = "3d",
     no_memory: Annotated[bool, typer.Option("--no-memory", help="Switch the short-term memory off.")] = False,
+    viz: Annotated[bool, typer.Option("--viz", help="Stream the mission to meshcat (prints the URL to open).")
+                   ] = False,
+    viz_url: Annotated[str | None, typer.Option(help="Join a running meshcat server at this ZMQ URL instead of "
+                                                     "starting one (e.g. tcp://127.0.0.1:6000).")] = None,
+    viz_rate: Annotated[float, typer.Option(help="Viewer updates per simulated second.", min=0.1, max=100)] = 10.0,
+    html: Annotated[Path | None, typer.Option(help="Write a self-contained HTML replay of the mission here.")
+                    ] = None,
+    hardware: Annotated[str | None, typer.Option(help="Hardware in the loop: the Dynamixel port of the robot's "
+                                                      "wheels (e.g. /dev/ttyUSB0), or 'virtual' for the emulated "
+                                                      "bus.", metavar="PATH|virtual")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default: runs/<timestamp>-mission).")] = None,
     robot_set: SetOption = None,
     world_set: Annotated[list[str] | None, typer.Option("--world-set", metavar="KEY=VALUE",
@@ -38,7 +49,8 @@ def mission(
 ) -> None:
     """Navigate to random roadmap targets with the 3D-PTG navigator, headless, and report how it went.
 
-    Writes report.json, trajectory_gt.txt, trajectory_est.txt (TUM) and mission.png into --out.
+    Writes report.json, trajectory_gt.txt, trajectory_est.txt (TUM), mission.png and viz_recording.npz (for
+    `simnav view`) into --out.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -73,9 +85,36 @@ def mission(
             bar.update(task, completed=done, info=f"{p.sim_time_s:.0f} s sim, {p.distance_m:.0f} m, "
                                                   f"{p.targets_reached} reached")
 
-        report = run_mission(world_spec, mission_robot(robot_spec, settings), settings, out_dir, progress)
+        with ExitStack() as stack:
+            observers = _viewers(stack, viz, viz_url, viz_rate, html, out_dir)
+            factory = _hardware(stack, hardware, robot_spec)
+            report = run_mission(world_spec, mission_robot(robot_spec, settings), settings, out_dir, progress,
+                                 observers=observers, robot_factory=factory)
     _update_latest(out_dir)
+    if html is not None:
+        console.print(f"replay: {html}")
     _print_report(report, out_dir)
+
+
+def _viewers(stack: ExitStack, live: bool, url: str | None, rate_hz: float, html: Path | None, out_dir: Path) -> list:
+    """The mission's observers: the meshcat viewer (live and/or HTML replay) and the recording for `simnav view`."""
+    from simnav.viz import mission_observers
+
+    observers = stack.enter_context(mission_observers(live=live or url is not None, url=url, html_path=html,
+                                                      out_dir=out_dir, rate_hz=rate_hz))
+    for obs in observers:
+        if getattr(obs, "web_url", None):
+            err_console.print(f"meshcat: [bold]{obs.web_url}[/]")
+    return observers
+
+
+def _hardware(stack: ExitStack, target: str | None, robot_spec):
+    """The robot factory for hardware in the loop (None: the simulated robot)."""
+    if target is None:
+        return None
+    from simnav.hardware import hardware_in_the_loop
+
+    return stack.enter_context(hardware_in_the_loop(target, robot_spec))
 
 
 def _print_report(report, out_dir: Path) -> None:
