@@ -145,16 +145,62 @@ SensorSpec = Annotated[
 ]
 
 
-class Hardware(FrozenModel):
-    """Dynamixel bridge settings (used only by simnav.hardware)."""
+DynamixelModel = Literal["XL430-W250", "XM430-W210", "XM430-W350", "XH430-W210", "XH430-W350", "XC430-W150",
+                         "XC430-W240"]
+"""X-series 430 servos with velocity mode (one control table; see simnav.hardware.control_table)."""
+BaudRate = Literal[9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000]
+"""Rates both the X-series Baud Rate register and dynamixel-sdk's PortHandler support, bit/s."""
 
-    port: str = "/dev/ttyUSB0"
-    baud_rate: int = 1_000_000
+
+class Hardware(FrozenModel):
+    """Dynamixel wheel servos of the differential base (used only by simnav.hardware).
+
+    Wheel radius and separation, the (v, w) limits and the acceleration limits come from ``drive``; this block holds
+    what belongs to the servos and their bus. Each control period the bridge sends one goal velocity per wheel and
+    reads back velocities and positions; no fresh command for two control periods stops the wheels, and the
+    servos' own bus watchdog (``watchdog_ms``) stops them if the host goes silent.
+
+    Fields: ``port`` (serial device), ``baud_rate`` (bit/s), ``model`` (checked at start-up), ``left_id`` /
+    ``right_id``, ``reverse_left`` / ``reverse_right`` (the servo is mounted mirrored: its positive rotation drives
+    the robot backwards; a servo's own Drive Mode reverse bit is taken into account on top), ``max_wheel_speed_rad_s``
+    (written to Velocity Limit; commands are scaled into it keeping their curvature), ``control_rate_hz``,
+    ``watchdog_ms`` (multiple of 20 ms, more than two control periods), ``latency_timer_ms`` (the USB adapter's;
+    status timeout = 2 x this + 2 ms), ``reconnect_attempts`` / ``reconnect_interval_s`` (after a fault; 0: off).
+    """
+
+    port: str = Field("/dev/ttyUSB0", min_length=1)
+    baud_rate: BaudRate = 1_000_000
+    model: DynamixelModel = "XL430-W250"
     left_id: Annotated[int, Field(ge=0, le=252)] = 1
     right_id: Annotated[int, Field(ge=0, le=252)] = 2
+    reverse_left: bool = False
     reverse_right: bool = True
-    control_rate_hz: Positive = 50.0
-    watchdog_ms: Annotated[int, Field(ge=20, le=2540)] = 100
+    max_wheel_speed_rad_s: Annotated[float, Field(gt=0, le=24.5)] = 6.35
+    control_rate_hz: Annotated[float, Field(gt=0, le=500)] = 40.0
+    watchdog_ms: Annotated[int, Field(ge=20, le=2540, multiple_of=20)] = 100
+    latency_timer_ms: Annotated[float, Field(ge=0, le=255)] = 16.0
+    reconnect_attempts: Annotated[int, Field(ge=0, le=100)] = 0
+    reconnect_interval_s: Annotated[float, Field(gt=0, le=60)] = 0.5
+
+    @model_validator(mode="after")
+    def _check(self) -> Hardware:
+        if self.left_id == self.right_id:
+            raise ValueError(f"left_id and right_id must differ, both are {self.left_id}")
+        period_ms = 1000.0 / self.control_rate_hz
+        if self.watchdog_ms <= 2 * period_ms:
+            raise ValueError(f"watchdog_ms={self.watchdog_ms} must exceed two control periods "
+                             f"(2 x {period_ms:g} ms at control_rate_hz={self.control_rate_hz:g}), or a healthy "
+                             "loop would trip it")
+        return self
+
+    @property
+    def ids(self) -> tuple[int, int]:
+        """Servo IDs of the left and right wheel."""
+        return self.left_id, self.right_id
+
+    @property
+    def control_period_s(self) -> float:
+        return 1.0 / self.control_rate_hz
 
 
 class RobotSpec(FrozenModel):
