@@ -64,7 +64,9 @@ class NavigatorConfig:
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
             direction weight) is below this reduce the speed, m.
         stop_distance_m: at this effective distance the speed reaches ``min_speed_near_obstacles``, m.
-        min_speed_near_obstacles: relative speed floor of the obstacle speed regulation (0..1).
+        min_speed_near_obstacles: relative speed floor of the obstacle speed regulation (0..1): near obstacles the
+            fastest point of the robot (forward speed plus yaw rate times the circumradius) moves at most this
+            fraction of the top speed.
         lateral_obstacle_weight: how much an obstacle straight to the side counts relative to one in front.
         memory: use the short-term memory.
         memory_config: its options.
@@ -315,7 +317,8 @@ class ReactiveNavigator3D:
         self._blocked_since_s = None
         space = self._spaces[best.ptg]
         v, w = space.command(best.k)
-        speed = best.speed * self._obstacle_speed_factor(band_xy) * self._approach_speed_factor(T_odom_base)
+        speed = best.speed * self._approach_speed_factor(T_odom_base)
+        speed *= self._point_speed_scale(v, w, self._obstacle_speed_factor(band_xy))
         v, w = self._limit_speeds(v * speed, w * speed)
         return self._output(v, w, dt, t0, "navigating", target_index, space.name, best.k, best.free, speed)
 
@@ -433,6 +436,16 @@ class ReactiveNavigator3D:
                                                         cfg.lateral_obstacle_weight, effective)
         ramp = (effective - cfg.stop_distance_m) / (cfg.slow_down_distance_m - cfg.stop_distance_m)
         return float(np.clip(ramp, cfg.min_speed_near_obstacles, 1.0))
+
+    def _point_speed_scale(self, v: float, w: float, factor: float) -> float:
+        """Scale (<= 1) of a path's full-speed command (v, w) that keeps the robot's fastest point,
+        ``|v| + |w|·circumradius``, at or below ``factor`` of the top speed: near obstacles a drive slows down in
+        proportion, while a turn on the spot, which brings no point fast towards them, keeps most of its rate."""
+        if factor >= 1.0:
+            return 1.0
+        point_m_s = abs(v) + abs(w) * self._robot_radius_m
+        cap_m_s = factor * self.max_v_m_s
+        return 1.0 if point_m_s <= cap_m_s else cap_m_s / point_m_s
 
     def _approach_speed_factor(self, T_odom_base: np.ndarray) -> float:
         """Slow down over ``target_slow_down_m`` before the final target."""

@@ -187,3 +187,18 @@ def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
     with pytest.raises(ValueError, match="waypoints"):
         nav.set_waypoints(np.array([[np.nan, 0.0]]))
 
+
+
+def test_near_obstacles_the_fastest_point_of_the_robot_is_slowed_not_each_speed(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    radius_m = math.hypot(0.3, 0.3)
+    assert nav._point_speed_scale(V_MAX, 0.0, 1.0) == 1.0  # nothing near: full speed
+    assert nav._point_speed_scale(V_MAX, 0.0, 0.4) == pytest.approx(0.4)  # driving straight: 0.4 of top speed
+    # a slow turn on the spot moves no point faster than the cap: untouched
+    assert nav._point_speed_scale(0.0, 0.5, 0.4) == 1.0
+    # a fast one is held to the cap at the corners
+    scale = nav._point_speed_scale(0.0, W_MAX, 0.4)
+    assert scale * W_MAX * radius_m == pytest.approx(0.4 * V_MAX)
+    # an arc shares the cap between driving and turning
+    scale = nav._point_speed_scale(0.3, 0.5, 0.4)
+    assert scale * (0.3 + 0.5 * radius_m) == pytest.approx(0.4 * V_MAX)
