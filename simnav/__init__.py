@@ -15,3 +15,8 @@ os.environ.setdefault("MUJOCO_GL", "egl" if ctypes.util.find_library("EGL") else
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# Gymnasium ids (simnav/OfficeNav-v0, ...): registered now if gymnasium is loaded, else right after it loads
+from simnav.env.registration import register_when_gymnasium_loads  # noqa: E402
+
+register_when_gymnasium_loads()

@@ -16,6 +16,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 import simnav
@@ -38,7 +39,7 @@ def user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return fn(*args, **kwargs)
         except SimnavError as err:
-            err_console.print(f"[bold red]error:[/] {err}", highlight=False, markup=True, soft_wrap=True)
+            err_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False, markup=True, soft_wrap=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:
             err_console.print("[yellow]interrupted[/]")
@@ -178,6 +179,7 @@ def main() -> None:
 
 
 # Commands defined in other modules register themselves on `app` when imported.
+from simnav.cli import batch as _batch_commands  # noqa: E402, F401
 from simnav.cli import hw as _hw_commands  # noqa: E402, F401
 from simnav.cli import mission as _mission_commands  # noqa: E402, F401
 from simnav.cli import odometry as _odometry_commands  # noqa: E402, F401

@@ -56,13 +56,19 @@ class Simulator:
         self.model, self.index = build_scene(world, robot, self.pedestrian_count, self.wanderer_count,
                                              self.config.physics_dt_s)
         self.data = mujoco.MjData(self.model)
+        self._qpos, self._ctrl = self.data.qpos, self.data.ctrl  # views kept for the stepping loop
         q0, v0 = int(self.index.qpos_adr[0]), int(self.index.dof_adr[0])
         self._qs, self._vs = slice(q0, q0 + 3), slice(v0, v0 + 3)  # the base's x, y, yaw (contiguous)
         self.roadmap = RoadmapGraph.from_spec(world.roadmap)
         self._walls_xy = obstacle_segments(world)
         self.robot_radius_m = _circumradius(robot)
         self._motor_substeps = max(1, round(MOTOR_PERIOD_S / self.config.physics_dt_s))
+        self._dt_s, self._agent_substeps = self.config.physics_dt_s, self.config.agent_substeps
+        motor_dt = self._motor_substeps * self._dt_s
+        drive = robot.drive
+        self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
         self.sensors = self._make_sensors()
+        self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
         self.reset(seed)
 
     # ------------------------------------------------------------------------------------------------ set-up
@@ -139,6 +145,7 @@ class Simulator:
 
     def _reset_sensors(self) -> None:
         self._next_capture_s = [0.0 for _ in self.sensors]
+        self._schedule_changed()
         self._pending: list[tuple[float, int, Reading | Future]] = []
         self._pending_seq = 0
         self._latest: dict[str, Reading] = {}
@@ -150,7 +157,7 @@ class Simulator:
     @property
     def time_s(self) -> float:
         """Simulation time, s (whole physics steps times the step, free of accumulated rounding)."""
-        return round(self._step_count * self.config.physics_dt_s, 9)
+        return round(self._step_count * self._dt_s, 9)
 
     def step(self, v_m_s: float, w_rad_s: float) -> list[Reading]:
         """Command (v, w) and advance one control period.
@@ -179,69 +186,94 @@ class Simulator:
 
     def _steps_to_next_event(self, end: int) -> int:
         """Physics steps until something must happen in Python: agents, a sensor, the motor, the period end."""
-        k, dt = self._step_count, self.config.physics_dt_s
-        agent = self.config.agent_substeps
-        events = [end, (k // agent + 1) * agent]
-        events += [max(math.ceil(t / dt - 1e-6), k + 1) for t in self._next_capture_s]
+        k, agent = self._step_count, self._agent_substeps
+        # the earliest capture (a whole step, at least the next one), the agents' period and the period end
+        nxt = min(end, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
+        # a command arriving after its latency
         if len(self._commands) > 1:
-            events.append(max(math.ceil(self._commands[1][0] / dt - 1e-6), k + 1))
+            nxt = min(nxt, max(math.ceil(self._commands[1][0] / self._dt_s - 1e-6), k + 1))
+        # the motor controller's next acceleration update while it ramps towards the command
         if self._ramping():
-            events.append((k // self._motor_substeps + 1) * self._motor_substeps)
-        return min(events) - k
+            nxt = min(nxt, (k // self._motor_substeps + 1) * self._motor_substeps)
+        return nxt - k
+
+    def _schedule_changed(self) -> None:
+        """Cache the earliest capture time and its physics step (``_next_capture_s`` changed)."""
+        self._next_due_s = min(self._next_capture_s, default=math.inf)
+        steps = [math.ceil(t / self._dt_s - 1e-6) for t in self._next_capture_s]
+        self._next_capture_step = min(steps, default=2**62)
 
     def _advance(self, n: int) -> list[Reading]:
         """Run ``n`` physics steps with constant controls, then do what is due at the new time."""
+        k = self._step_count
         # agents move on their own period (their state is one period ahead; poses are interpolated)
-        if self._step_count % self.config.agent_substeps == 0:
+        if k % self._agent_substeps == 0:
             self._step_agents()
         # motor model: latency, then acceleration limits at the motor controller's rate
-        self._apply_drive()
-        v0, w0 = self.base_velocity()
+        self._apply_drive(round(k * self._dt_s, 9))
+        encoders = self._encoders
+        if encoders:
+            v0, w0 = self.base_velocity()
         mujoco.mj_step(self.model, self.data, nstep=n)
-        self._step_count += n
-        v1, w1 = self.base_velocity()
-        for s in self.sensors:
-            if isinstance(s, WheelEncoders):
-                s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * self.config.physics_dt_s)
-        self._history.append((self.time_s, *self.pose_xy_yaw))
-        self._check_contacts()
-        self._capture_due()
-        return self._deliver()
+        self._step_count = k = k + n
+        t = round(k * self._dt_s, 9)
+        if encoders:
+            v1, w1 = self.base_velocity()
+            for s in encoders:
+                s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * self._dt_s)
+        x, y, yaw = self._qpos[self._qs].tolist()
+        self._history.append((t, x, y, math.atan2(math.sin(yaw), math.cos(yaw))))
+        if self.data.ncon:
+            self._check_contacts()
+        else:
+            self._active_contacts.clear()
+        # sensors due now, and readings whose latency has passed
+        if self._next_due_s <= t + _EPS_S:
+            self._capture_due()
+        if self._pending and self._pending[0][0] <= t + _EPS_S:
+            return self._deliver()
+        return []
 
     def _ramping(self) -> bool:
         _, v_target, w_target = self._commands[0]
         return v_target != self._v_m_s or w_target != self._w_rad_s
 
-    def _apply_drive(self) -> None:
-        drive = self.robot.drive
-        now = self.time_s
-        while len(self._commands) > 1 and self._commands[1][0] <= now + _EPS_S:
-            self._commands.popleft()
-        _, v_target, w_target = self._commands[0]
-        if self._step_count % self._motor_substeps == 0 or not self._ramping():
-            dt = self._motor_substeps * self.config.physics_dt_s
-            dv_max, dw_max = drive.max_acc_m_s2 * dt, drive.max_ang_acc_rad_s2 * dt
-            self._v_m_s += float(np.clip(v_target - self._v_m_s, -dv_max, dv_max))
-            self._w_rad_s += float(np.clip(w_target - self._w_rad_s, -dw_max, dw_max))
-        self.data.ctrl[:3] = [self._v_m_s, 0.0, self._w_rad_s]
+    def _apply_drive(self, now: float) -> None:
+        """Commands whose latency has passed at ``now`` (s) take effect; the motor ramps towards the latest one."""
+        commands = self._commands
+        while len(commands) > 1 and commands[1][0] <= now + _EPS_S:
+            commands.popleft()
+        _, v_target, w_target = commands[0]
+        v, w = self._v_m_s, self._w_rad_s
+        if self._step_count % self._motor_substeps == 0 or (v_target == v and w_target == w):
+            dv_max, dw_max = self._ramp_limits
+            # python floats: min/max is np.clip without its per-call overhead
+            self._v_m_s = v = v + min(max(v_target - v, -dv_max), dv_max)
+            self._w_rad_s = w = w + min(max(w_target - w, -dw_max), dw_max)
+        ctrl = self._ctrl
+        ctrl[0], ctrl[1], ctrl[2] = v, 0.0, w
 
     def _step_agents(self) -> None:
         dt = self.config.agent_dt_s
         robot_xy = self.data.qpos[self._qs][:2].copy()
         robot_vel = self.data.qvel[self._vs][:2].copy()
+        wanderers = self.wanderers
         circles = np.vstack([[*robot_xy, self.robot_radius_m],
-                             np.column_stack([self.wanderers.positions_xy, np.full(self.wanderers.count,
-                                                                                     WANDERER_RADIUS_M)])])
-        circle_vel = np.vstack([robot_vel, self.wanderers.velocities_xy])
-        doors = door_segments(self.doors) if self.doors else None
-        self.crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
-        others = np.vstack([self.crowd.positions_xy, robot_xy[None]])
-        self.wanderers.step(dt, others)
-        nearby = np.vstack([others, self.wanderers.positions_xy])
+                             np.column_stack([wanderers.positions_xy, np.full(wanderers.count, WANDERER_RADIUS_M)])])
+        # people (an empty crowd has nothing to step), then the other robots, then the doors
+        if self.crowd.count:
+            circle_vel = np.vstack([robot_vel, wanderers.velocities_xy])
+            doors = door_segments(self.doors) if self.doors else None
+            self.crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
         people = self.crowd.positions_xy
-        blockers = np.vstack([circles, np.column_stack([people, np.full(len(people), self.crowd.radius_m)])])
-        for door in self.doors:
-            door.update(self._agent_time_s + dt, dt, nearby, blockers)
+        others = np.vstack([people, robot_xy[None]])
+        if wanderers.count:
+            wanderers.step(dt, others)
+        if self.doors:
+            nearby = np.vstack([others, wanderers.positions_xy])
+            blockers = np.vstack([circles, np.column_stack([people, np.full(len(people), self.crowd.radius_m)])])
+            for door in self.doors:
+                door.update(self._agent_time_s + dt, dt, nearby, blockers)
         self._agent_time_s += dt
         self._pose_agents_at(self.time_s)
 
@@ -252,17 +284,12 @@ class Simulator:
         self._posed_at = (t_s, self._agent_time_s)
         back = max(self._agent_time_s - t_s, 0.0)
         d, idx = self.data, self.index
-        for mocap, pos, vel, yaw, rate in (
-            (idx.pedestrian_mocap, self.crowd.positions_xy, self.crowd.velocities_xy, self.crowd.yaws_rad,
-             self.crowd.yaw_rates_rad_s),
-            (idx.wanderer_mocap, self.wanderers.positions_xy, self.wanderers.velocities_xy, self.wanderers.yaws_rad,
-             self.wanderers.yaw_rates_rad_s),
-        ):
+        for mocap, agents in ((idx.pedestrian_mocap, self.crowd), (idx.wanderer_mocap, self.wanderers)):
             if len(mocap):
-                xy = pos - vel * back
+                xy = agents.positions_xy - agents.velocities_xy * back
                 d.mocap_pos[mocap, :2] = xy
                 d.mocap_pos[mocap, 2] = 0.0
-                d.mocap_quat[mocap] = _yaw_quats(yaw - rate * back)
+                d.mocap_quat[mocap] = _yaw_quats(agents.yaws_rad - agents.yaw_rates_rad_s * back)
         if len(idx.door_mocap):
             yaws = np.array([door.yaw_rad - door.yaw_rate_rad_s * back for door in self.doors])
             d.mocap_quat[idx.door_mocap] = _yaw_quats(yaws)
@@ -277,19 +304,26 @@ class Simulator:
             self._pose_agents_at(t)
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_camlight(self.model, self.data)
+        # cameras first: their frames render in the background while the other sensors capture here (each sensor
+        # has its own noise stream and nothing here changes the state, so the order does not change a reading)
         twists = None
-        for k in due:
+        readings: dict[int, Reading | Future] = {}
+        for k in sorted(due, key=lambda k: not isinstance(self.sensors[k], RGBDCamera)):
             sensor, rng = self.sensors[k], self._rng_sensors[k]
             if isinstance(sensor, WheelEncoders):
-                reading = sensor.capture(t, rng)
+                readings[k] = sensor.capture(t, rng)
             elif isinstance(sensor, RGBDCamera):
                 twists = self.body_twists_world() if twists is None else twists
-                reading = sensor.submit(self.data, t, rng, twists)
+                readings[k] = sensor.submit(self.data, t, rng, twists)
             else:
-                reading = sensor.capture(self.data, t, rng)
+                readings[k] = sensor.capture(self.data, t, rng)
+        # queued in sensor order (ties in delivery time keep it)
+        for k in due:
+            sensor = self.sensors[k]
             self._next_capture_s[k] += sensor.period_s
-            heapq.heappush(self._pending, (round(t + sensor.latency_s, 9), self._pending_seq, reading))
+            heapq.heappush(self._pending, (round(t + sensor.latency_s, 9), self._pending_seq, readings[k]))
             self._pending_seq += 1
+        self._schedule_changed()
 
     def _deliver(self) -> list[Reading]:
         """Readings due by now, in order. Camera frames are made in the background (futures): in lockstep mode

@@ -1,0 +1,151 @@
+"""Throughput of the navigation env and of batch missions, compared with the targets of the env.
+
+Every configuration runs in this process on the same seeds: random actions from one seeded generator, an episode
+reset whenever one ends (resets are part of the time). Prints the median steps/s over ``--repeats`` runs of
+``--steps`` steps of:
+
+* a single env: the default ``simnav/OfficeNav-v0`` (the office's 10 people and its robot, the 682-beam lidar),
+  with depth, and lighter settings (no people, with and without depth; the corridor without people and a 90-beam
+  lidar);
+* ``SyncVectorEnv`` and ``AsyncVectorEnv`` (spawn) of 2 default envs (env-steps/s, i.e. both envs' steps);
+* batch missions (``simnav batch``: the default office mission for ``--mission-seconds`` simulated seconds each)
+  on 1 and on 2 local workers: simulated seconds per wall second, and the 1 -> 2 workers ratio.
+
+Targets: >= 3000 steps/s lidar only in one process, >= 200 steps/s with depth, >= 1.8x from 1 to 2 workers.
+
+    python scripts/bench_env.py [--steps 400] [--repeats 5] [--missions 4] [--mission-seconds 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import time
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import simnav  # noqa: F401  (first: it chooses MUJOCO_GL before mujoco loads)
+import gymnasium as gym
+from simnav.batch import mission_jobs, run_batch
+from simnav.mission.mission import MissionSettings
+
+ENV = "simnav/OfficeNav-v0"
+SEED = 0
+TARGET_LIDAR, TARGET_DEPTH, TARGET_SCALING = 3000.0, 200.0, 1.8
+
+SINGLE = [
+    ("OfficeNav-v0 default (10 people + 1 robot, 682 beams), lidar", ENV, {}),
+    ("OfficeNav-v0 default, lidar + QQVGA depth", ENV, {"sensors": "lidar+depth"}),
+    ("OfficeNav-v0 without people or robots, lidar", ENV, {"people": 0, "robots": 0}),
+    ("OfficeNav-v0 without people or robots, lidar + depth", ENV, {"people": 0, "robots": 0, "sensors": "lidar+depth"}),
+    ("CorridorNav-v0 without people, 90-beam lidar", "simnav/CorridorNav-v0", {"people": 0, "lidar_beams": 90}),
+]
+
+
+def steps_per_second(step_batch, steps: int, repeats: int, per_call: int = 1) -> float:
+    """Median env-steps/s of ``repeats`` runs of ``steps`` calls (after one warm-up run)."""
+    step_batch(steps // 4)
+    rates = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        step_batch(steps)
+        rates.append(steps * per_call / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
+def bench_single(env_id: str, kwargs: dict, steps: int, repeats: int) -> float:
+    env = gym.make(env_id, **kwargs)
+    env.reset(seed=SEED)
+    actions = np.random.default_rng(SEED).uniform(-1, 1, (steps, 2)).astype(np.float32)
+
+    def run(n: int) -> None:
+        for a in actions[:n]:
+            _, _, terminated, truncated, _ = env.step(a)
+            if terminated or truncated:
+                env.reset()
+
+    rate = steps_per_second(run, steps, repeats)
+    env.close()
+    return rate
+
+
+def bench_vector(mode: str, steps: int, repeats: int, num_envs: int = 2) -> float:
+    vector_kwargs = {"context": "spawn"} if mode == "async" else {}
+    envs = gym.make_vec(ENV, num_envs=num_envs, vectorization_mode=mode, vector_kwargs=vector_kwargs)
+    envs.reset(seed=SEED)
+    actions = np.random.default_rng(SEED).uniform(-1, 1, (steps, num_envs, 2)).astype(np.float32)
+
+    def run(n: int) -> None:
+        for a in actions[:n]:
+            envs.step(a)  # sub-envs reset themselves (next-step autoreset)
+
+    rate = steps_per_second(run, steps, repeats, per_call=num_envs)
+    envs.close()
+    return rate
+
+
+def bench_batch(workers: int, missions: int, seconds: float) -> tuple[float, float, float]:
+    """(simulated seconds per wall second, wall time, cores the workers got) of ``missions`` office missions of
+    ``seconds`` each; the cores are the workers' CPU time over the wall time (below ``workers`` when the machine is
+    shared)."""
+    jobs = mission_jobs(missions, settings=MissionSettings(targets=None, duration_s=seconds), first_seed=1)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    report = run_batch(jobs, workers=workers)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return report.summary["sim_time_s"] / wall, wall, cpu / wall
+
+
+def verdict(value: float, target: float) -> str:
+    return f"[green]meets {target:g}[/]" if value >= target else f"[red]misses {target:g}[/]"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=400, help="steps per timed run")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median)")
+    parser.add_argument("--missions", type=int, default=4, help="missions per batch run")
+    parser.add_argument("--mission-seconds", type=float, default=20.0, help="simulated seconds per mission")
+    args = parser.parse_args()
+    console = Console()
+    load = os.getloadavg()
+    console.print(f"{os.cpu_count()} CPUs, load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
+                  f"(1 / 5 / 15 min) before the runs; MUJOCO_GL={os.environ.get('MUJOCO_GL')}")
+
+    table = Table("configuration", "steps/s", "vs target", title=f"env steps/s (median of {args.repeats} x "
+                                                                   f"{args.steps} steps, seed {SEED})")
+    single = {}
+    for name, env_id, kwargs in SINGLE:
+        single[name] = rate = bench_single(env_id, kwargs, args.steps, args.repeats)
+        target = TARGET_DEPTH if "depth" in name else TARGET_LIDAR
+        table.add_row(name, f"{rate:.0f}", verdict(rate, target))
+    for mode, label in (("sync", "SyncVectorEnv"), ("async", "AsyncVectorEnv (spawn)")):
+        rate = bench_vector(mode, args.steps, args.repeats)
+        table.add_row(f"{label} x 2, OfficeNav-v0 default, lidar", f"{rate:.0f}", "")
+    console.print(table)
+
+    # one software-rendering thread per worker in both runs, so that 1 worker does not render on 2 cores
+    os.environ["LP_NUM_THREADS"] = "1"
+    batch = Table("workers", "simulated s / wall s", "wall time (s)", "cores used",
+                  title=f"batch missions: {args.missions} office missions of {args.mission_seconds:g} s simulated "
+                        f"(default mission: 10 people, lidar + depth camera)")
+    rates, cores = {}, {}
+    for workers in (1, 2):
+        rates[workers], wall, cores[workers] = bench_batch(workers, args.missions, args.mission_seconds)
+        batch.add_row(str(workers), f"{rates[workers]:.2f}", f"{wall:.1f}", f"{cores[workers]:.2f}")
+    console.print(batch)
+    ratio = rates[2] / rates[1]
+    console.print(f"1 -> 2 workers: {ratio:.2f}x ({verdict(ratio, TARGET_SCALING)}); the workers got "
+                  f"{cores[1]:.2f} and {cores[2]:.2f} cores (CPU time / wall time)")
+    load = os.getloadavg()
+    console.print(f"load average after the runs: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
