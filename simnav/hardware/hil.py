@@ -159,7 +159,7 @@ class HilRobot:
         v_m_s = sum(s.v_m_s for s in samples) / len(samples)
         w_rad_s = sum(s.w_rad_s for s in samples) / len(samples)
         self._record_ticks(samples)
-        readings = self.sim.step(v_m_s, w_rad_s)
+        readings = self.sim.step(v_m_s, w_rad_s, measured=True)
         # Wheel encoders: the servos' positions in place of the simulated ones
         self._inbox += [self._motor_ticks(r) if isinstance(r, WheelTicks) else r for r in readings]
 

@@ -159,12 +159,14 @@ class Simulator:
         """Simulation time, s (whole physics steps times the step, free of accumulated rounding)."""
         return round(self._step_count * self._dt_s, 9)
 
-    def step(self, v_m_s: float, w_rad_s: float) -> list[Reading]:
+    def step(self, v_m_s: float, w_rad_s: float, *, measured: bool = False) -> list[Reading]:
         """Command (v, w) and advance one control period.
 
         Args:
             v_m_s: forward speed command, m/s (clamped to the drive's limit).
             w_rad_s: yaw rate command, rad/s, counter-clockwise (clamped).
+            measured: (v, w) is what real motors measured (hardware in the loop): the base takes it at once,
+                without the simulated motor's latency and acceleration ramp.
 
         Returns:
             The readings that became available during this period, oldest first.
@@ -177,7 +179,12 @@ class Simulator:
         drive = self.robot.drive
         v = float(np.clip(v_m_s, -drive.max_v_m_s, drive.max_v_m_s))
         w = float(np.clip(w_rad_s, -drive.max_w_rad_s, drive.max_w_rad_s))
-        self._commands.append((self.time_s + drive.command_latency_s, v, w))
+        if measured:
+            self._commands.clear()
+            self._commands.append((self.time_s, v, w))
+            self._v_m_s, self._w_rad_s = v, w
+        else:
+            self._commands.append((self.time_s + drive.command_latency_s, v, w))
         delivered: list[Reading] = []
         end = self._step_count + self.config.substeps
         while self._step_count < end:

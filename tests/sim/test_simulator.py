@@ -46,6 +46,19 @@ def test_latency_and_acceleration_limits(box_room):
         assert sim.base_velocity()[0] == pytest.approx(0.5, abs=0.01)
 
 
+def test_a_measured_velocity_skips_the_motor_model(box_room):
+    # hardware in the loop: real motors measured (v, w); the simulated motor must not add its latency and ramp
+    robot = load_robot("giraff", LIDAR_ONLY + ["drive.command_latency_s=0.1", "drive.max_acc_m_s2=0.5"])
+    with Simulator(box_room, robot) as sim:
+        sim.step(0.5, 0.3, measured=True)  # 50 ms: only the base's 20 ms velocity servo lags
+        v, w = sim.base_velocity()
+        assert 0.4 < v <= 0.5 and 0.24 < w <= 0.3
+        sim.step(0.0, 0.0, measured=True)
+        assert abs(sim.base_velocity()[0]) < 0.06
+        sim.step(0.5, 0.0)  # back to commands: the latency holds this one back
+        assert abs(sim.base_velocity()[0]) < 0.01
+
+
 def test_commands_are_clamped_and_nan_is_refused(box_room):
     with Simulator(box_room, load_robot("giraff", LIDAR_ONLY)) as sim:
         for _ in range(40):
