@@ -108,6 +108,8 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.observation_space = self._observation_space()
         self._sim = None
+        self.last_readings: list = []
+        """The sensor readings of the latest step (a viewer draws them)."""
         self._view = None
 
     # --------------------------------------------------------------------------------------------- spaces
@@ -154,6 +156,7 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         sim = self._simulator(sim_seed)
         sim.reset(seed=sim_seed, spawn=self._starts[k])
         readings = sim.flush()  # the readings taken at t = 0
+        self.last_readings = readings
         self._pose = _make_pose_source(self.config.pose_source, self.robot_spec)
         if self._pose is not None:
             self._pose.anchor(0.0, se2.from_se3(sim.T_world_base))
@@ -178,6 +181,11 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self._sim
 
     # ----------------------------------------------------------------------------------------------- step
+    @property
+    def simulator(self):
+        """The :class:`~simnav.sim.simulator.Simulator` behind the env (None before the first :meth:`reset`)."""
+        return self._sim
+
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Apply ``action`` (2,) in [-1, 1] (clipped) for one control period.
 
@@ -192,6 +200,7 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         # Command and simulate one control period
         v, w = float(min(max(a[0], -1.0), 1.0)), float(min(max(a[1], -1.0), 1.0))
         readings = self._sim.step(v * self.max_v_m_s, w * self.max_w_rad_s)
+        self.last_readings = readings
         if self._pose is not None:
             for reading in readings:
                 self._pose.feed(reading)

@@ -24,7 +24,8 @@ Gymnasium env, a script) can be watched without a navigator::
             observer.observe(sim.step(v, w))           # at most rate_hz frames per simulated second
         observer.finish()
 
-A Gymnasium wrapper holds such an observer, attaches it in ``reset`` and calls ``observe`` in ``step``.
+A Gymnasium env is watched with :class:`MeshcatEnvWrapper` (``MeshcatEnvWrapper(gym.make("simnav/OfficeNav-v0"))``),
+which holds such an observer, attaches it in ``reset`` and calls ``observe`` in ``step``.
 """
 
 from __future__ import annotations
@@ -42,13 +43,14 @@ from simnav.viz.observer import FrameSink, NullViewer, VizObserver
 from simnav.viz.recording import RECORDING_FILE, Recorder, Recording
 
 if TYPE_CHECKING:
+    from simnav.viz.env_wrapper import MeshcatEnvWrapper
     from simnav.viz.replay import HtmlReplay, replay_commands, replay_html, write_replay_html
     from simnav.viz.server import MeshcatConnection, MeshcatServer, meshcat_connection
     from simnav.viz.viewer import MeshcatViewer
 
 _LAZY = {"MeshcatViewer": "viewer", "MeshcatConnection": "server", "MeshcatServer": "server",
          "meshcat_connection": "server", "HtmlReplay": "replay", "replay_commands": "replay",
-         "replay_html": "replay", "write_replay_html": "replay"}
+         "replay_html": "replay", "write_replay_html": "replay", "MeshcatEnvWrapper": "env_wrapper"}
 """Names whose modules import meshcat (about 0.3 s): loaded on first use, so a mission without a viewer never
 imports it."""
 
@@ -99,6 +101,7 @@ __all__ = [
     "FrameSink",
     "HtmlReplay",
     "MeshcatConnection",
+    "MeshcatEnvWrapper",
     "MeshcatServer",
     "MeshcatViewer",
     "NullViewer",

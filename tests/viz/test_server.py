@@ -130,3 +130,28 @@ def test_a_simulator_alone_streams_to_the_browser():
     assert np.allclose(robot[:2, 3], [x, y], atol=1e-6)
     assert {"/meshcat/people/p0", "/meshcat/people/p1", "/meshcat/robot/scan"} <= set(by_path)
     assert "/meshcat/nav/obstacles" not in by_path
+
+
+def test_a_gymnasium_env_streams_to_the_browser_and_closes_its_server():
+    import gymnasium as gym
+
+    import simnav  # noqa: F401  (registers the envs)
+    from simnav.viz import MeshcatEnvWrapper
+
+    env = MeshcatEnvWrapper(gym.make("simnav/FlatNav-v0", people=2, robots=0))
+    try:
+        obs, _ = env.reset(seed=4)
+        for _ in range(10):  # 1 s at the env's 10 Hz
+            obs, reward, terminated, truncated, _ = env.step(np.array([0.5, 0.0], dtype=np.float32))
+        assert isinstance(reward, float) and "lidar" in obs
+        assert env.viewer.drawn >= 9 and env.viewer.dropped == 0
+        x, y, _ = env.unwrapped.simulator.pose_xy_yaw
+        env.viewer.connection.flush()
+        messages = websocket_messages(env.web_url)
+    finally:
+        env.close()
+    by_path = {m["path"]: m for m in messages}
+    robot = np.array(by_path["/meshcat/robot"]["matrix"]).reshape(4, 4).T
+    assert np.allclose(robot[:2, 3], [x, y], atol=1e-6)
+    assert {"/meshcat/people/p0", "/meshcat/people/p1", "/meshcat/robot/scan"} <= set(by_path)
+    assert not port_open(env.web_url)
