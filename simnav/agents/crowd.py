@@ -17,6 +17,7 @@ import logging
 import math
 
 import numpy as np
+from numba import njit
 
 from simnav.agents.roadmap import RoadmapGraph
 from simnav.agents.social_force import (
@@ -104,15 +105,34 @@ class SegmentGrid:
         n = len(points)
         if self._shape == (0, 0) or n == 0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        ij = np.floor((points - self._origin) / self._cell_m).astype(np.int64)
-        inside = (ij[:, 0] >= 0) & (ij[:, 0] < self._shape[0]) & (ij[:, 1] >= 0) & (ij[:, 1] < self._shape[1])
-        cell = np.where(inside, ij[:, 0] * self._shape[1] + ij[:, 1], 0)
-        starts = self._ptr[cell]
-        counts = np.where(inside, self._ptr[cell + 1] - starts, 0)
-        ped = np.repeat(np.arange(n), counts)
-        offsets = np.repeat(np.cumsum(counts) - counts, counts)
-        within = np.arange(len(ped)) - offsets
-        return ped, self._idx[np.repeat(starts, counts) + within]
+        pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+        return _grid_pairs(pts, self._origin, self._cell_m, self._shape[0], self._shape[1], self._ptr, self._idx)
+
+
+@njit(cache=True)
+def _grid_pairs(points: np.ndarray, origin: np.ndarray, cell_m: float, nx: int, ny: int, ptr: np.ndarray,
+                idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SegmentGrid.pairs` on the grid's flat cell lists ``idx[ptr[c]:ptr[c + 1]]`` (cell c = ix·ny + iy)."""
+    n = points.shape[0]
+    cell = np.full(n, -1, dtype=np.int64)
+    total = 0
+    # each point's cell (-1 outside the grid), then its segments in cell-list order
+    for i in range(n):
+        ix = np.int64(math.floor((points[i, 0] - origin[0]) / cell_m))
+        iy = np.int64(math.floor((points[i, 1] - origin[1]) / cell_m))
+        if 0 <= ix < nx and 0 <= iy < ny:
+            cell[i] = ix * ny + iy
+            total += ptr[cell[i] + 1] - ptr[cell[i]]
+    ped = np.empty(total, dtype=np.int64)
+    seg = np.empty(total, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        if cell[i] < 0:
+            continue
+        for j in range(ptr[cell[i]], ptr[cell[i] + 1]):
+            ped[k], seg[k] = i, idx[j]
+            k += 1
+    return ped, seg
 
 
 class Crowd:
@@ -262,20 +282,15 @@ class Crowd:
         if dynamic_segments is None or len(dynamic_segments) == 0:
             return self._walls, ped_idx, seg_idx
         dyn = np.asarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
-        segs = Segments(np.concatenate([self._wall_xy, dyn]))
+        segs = self._walls.extended(dyn)
         dyn_ped, dyn_seg = all_pairs(len(points), len(dyn))
         return segs, np.concatenate([ped_idx, dyn_ped]), np.concatenate([seg_idx, dyn_seg + len(self._walls)])
 
     def _desired(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit directions toward the current waypoints (N, 2) and the speeds to drive at (N,)."""
-        to_target = self._target - self._pos
-        dist = np.linalg.norm(to_target, axis=1)
-        ok = dist > 1e-6
-        self._dirs[ok] = to_target[ok] / dist[ok, None]
-        yielding = self._yield_s > 0.0
-        self._dirs[yielding] = self._yield_dir[yielding]
-        speeds = np.where(yielding, YIELD_SPEED_FACTOR * self._speeds, self._speeds)
-        return self._dirs, np.where(self._arrived, 0.0, speeds)
+        speeds = _desired_update(self._dirs, self._target, self._pos, self._yield_s, self._yield_dir, self._speeds,
+                                 self._arrived, YIELD_SPEED_FACTOR)
+        return self._dirs, speeds
 
     def _update_yaws(self, dt_s: float) -> None:
         speed = np.linalg.norm(self._vel, axis=1)
@@ -348,11 +363,8 @@ class Crowd:
         without this, people whose next roadmap node a robot stands on circle it for ever."""
         if circles is None or len(circles) == 0 or len(self._pos) == 0:
             return np.zeros(len(self._pos))
-        c = np.asarray(circles, dtype=float).reshape(-1, 3)
-        gap = np.linalg.norm(self._target[:, None, :] - c[None, :, :2], axis=2) - c[None, :, 2] - self.radius_m
-        covering = gap < OCCUPIED_MARGIN_M
-        extra = np.where(covering, c[None, :, 2] + self.radius_m, 0.0)
-        return extra.max(axis=1)
+        c = np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
+        return _occupied_extra(self._target, c, self.radius_m, OCCUPIED_MARGIN_M)
 
     def _advance(self, k: int) -> None:
         path = self._paths[k]
@@ -384,21 +396,16 @@ class Crowd:
         if n == 0 or n + len(c) < 2:
             return
         others = np.concatenate([self._pos, c[:, :2]])
-        rel = others[None, :, :] - self._pos[:, None, :]
-        dist = np.linalg.norm(rel, axis=2)
-        dist[:, :n] += np.eye(n) * 1e9
         reach = np.concatenate([np.full(n, BLOCKING_DISTANCE_M), BLOCKING_DISTANCE_M + c[:, 2] - self.radius_m])
-        ahead = np.sum(rel * self._dirs[:, None, :], axis=2) >= dist * math.cos(BLOCKING_HALF_ANGLE_RAD)
-        in_way = ahead & (dist < reach[None, :])
+        in_way, blocker = _closest_in_way(self._pos, self._dirs, others, reach, math.cos(BLOCKING_HALF_ANGLE_RAD))
         slow = np.linalg.norm(self._vel, axis=1) < BLOCKED_SPEED_M_S
-        blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & np.any(in_way, axis=1)
+        blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & in_way
         self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
-        blocker = np.argmin(np.where(in_way, dist, np.inf), axis=1)
         priority = np.concatenate([self._priority, np.full(len(c), np.inf)])
         outranked = self._priority < priority[blocker]
         steps_back = (self._blocked_s >= YIELD_AFTER_S) & outranked | (self._blocked_s >= FORCE_YIELD_AFTER_S)
         for k in np.nonzero(steps_back)[0]:
-            away = -rel[k, blocker[k]]
+            away = -(others[blocker[k]] - self._pos[k])
             if blocker[k] >= n:  # a robot: head for a spot beside it, on the right of the way it wanted to go
                 right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
                 beside = c[blocker[k] - n, :2] + (c[blocker[k] - n, 2] + self.radius_m + ROBOT_PASSING_GAP_M) * right
@@ -474,6 +481,73 @@ class Crowd:
         if len(keep_out) and np.any(np.linalg.norm(keep_out[:, :2] - xy, axis=1) < keep_out[:, 2] + r):
             return False
         return True
+
+
+@njit(cache=True)
+def _desired_update(dirs: np.ndarray, target: np.ndarray, pos: np.ndarray, yield_s: np.ndarray,
+                    yield_dir: np.ndarray, speeds: np.ndarray, arrived: np.ndarray, yield_factor: float) -> np.ndarray:
+    """Point ``dirs`` (N, 2, in place) at the targets, or along ``yield_dir`` while yielding; (N,) drive speeds.
+
+    A pedestrian within 1 µm of its target keeps its direction; one yielding walks at ``yield_factor`` of its
+    speed, one that has arrived stands (0). Positions in metres, speeds in m/s.
+    """
+    n = pos.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        dx, dy = target[i, 0] - pos[i, 0], target[i, 1] - pos[i, 1]
+        dist = math.sqrt(dx * dx + dy * dy)
+        if dist > 1e-6:
+            dirs[i, 0], dirs[i, 1] = dx / dist, dy / dist
+        speed = speeds[i]
+        if yield_s[i] > 0.0:
+            dirs[i, 0], dirs[i, 1] = yield_dir[i, 0], yield_dir[i, 1]
+            speed = yield_factor * speeds[i]
+        out[i] = 0.0 if arrived[i] else speed
+    return out
+
+
+@njit(cache=True)
+def _occupied_extra(targets: np.ndarray, circles: np.ndarray, radius_m: float, margin_m: float) -> np.ndarray:
+    """(N,) the largest ``circle radius + radius_m`` over the circles (C, 3) whose rim comes within ``margin_m``
+    of the pedestrian's rim about its target (N, 2), else 0 (all metres)."""
+    n = targets.shape[0]
+    out = np.zeros(n)
+    for i in range(n):
+        best = -np.inf
+        for k in range(circles.shape[0]):
+            dx, dy = targets[i, 0] - circles[k, 0], targets[i, 1] - circles[k, 1]
+            gap = math.sqrt(dx * dx + dy * dy) - circles[k, 2] - radius_m
+            best = max(best, circles[k, 2] + radius_m if gap < margin_m else 0.0)
+        out[i] = best
+    return out
+
+
+@njit(cache=True)
+def _closest_in_way(pos: np.ndarray, dirs: np.ndarray, others: np.ndarray, reach: np.ndarray,
+                    cos_half_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Who stands in each pedestrian's way: (N,) whether anyone does, and (N,) the index of the closest (else 0).
+
+    Args:
+        pos: (N, 2) pedestrian centres, metres. dirs: (N, 2) unit desired directions.
+        others: (K, 2) centres of the N pedestrians, then of the round obstacles, metres.
+        reach: (K,) how far ahead each of ``others`` counts as in the way, metres.
+        cos_half_angle: cosine of the half-angle of the cone ahead.
+    """
+    n, k_count = pos.shape[0], others.shape[0]
+    in_way = np.zeros(n, dtype=np.bool_)
+    blocker = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        best = np.inf
+        for k in range(k_count):
+            rx, ry = others[k, 0] - pos[i, 0], others[k, 1] - pos[i, 1]
+            dist = math.sqrt(rx * rx + ry * ry)
+            if k == i:
+                dist += 1e9
+            if rx * dirs[i, 0] + ry * dirs[i, 1] >= dist * cos_half_angle and dist < reach[k]:
+                in_way[i] = True
+                if dist < best:
+                    best, blocker[i] = dist, k
+    return in_way, blocker
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:

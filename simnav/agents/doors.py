@@ -19,6 +19,7 @@ from enum import IntEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 
 if TYPE_CHECKING:
     from simnav.world.schema import Door
@@ -47,6 +48,8 @@ class DoorLeaf:
         self._swing_rad = math.radians(spec.swing_deg)
         across = np.array([math.cos(self._closed_yaw_rad), math.sin(self._closed_yaw_rad)])
         self._center = self._hinge + 0.5 * spec.width_m * across
+        self._hinge_xy = (float(self._hinge[0]), float(self._hinge[1]))
+        self._center_xy = (float(self._center[0]), float(self._center[1]))
         self._durations = (spec.open_s, spec.move_s, spec.closed_s, spec.move_s)
         self._stage, self._elapsed_s = self._stage_at(spec.phase_s % sum(self._durations))
         self._opening = self._opening_now()
@@ -95,8 +98,13 @@ class DoorLeaf:
 
     def segment_xy(self) -> np.ndarray:
         """(2, 2) leaf segment ``[hinge, tip]``, metres."""
-        tip = self._hinge + self._spec.width_m * np.array([math.cos(self.yaw_rad), math.sin(self.yaw_rad)])
-        return np.stack([self._hinge, tip])
+        return np.array(self._segment())
+
+    def _segment(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``((hinge x, y), (tip x, y))``, metres, as python floats."""
+        yaw, width = self.yaw_rad, self._spec.width_m
+        hx, hy = self._hinge_xy
+        return (hx, hy), (hx + width * math.cos(yaw), hy + width * math.sin(yaw))
 
     def update(self, t_s: float, dt_s: float, nearby_xy: np.ndarray | None = None,
                blockers_xyr: np.ndarray | None = None) -> None:
@@ -127,8 +135,8 @@ class DoorLeaf:
     def _someone_near(self, nearby_xy: np.ndarray | None) -> bool:
         if nearby_xy is None or len(nearby_xy) == 0:
             return False
-        d = np.linalg.norm(np.asarray(nearby_xy, dtype=float).reshape(-1, 2) - self._center, axis=1)
-        return bool(np.any(d <= self._spec.auto_open_radius_m))
+        points = np.ascontiguousarray(nearby_xy, dtype=float).reshape(-1, 2)
+        return _any_within(points, self._center_xy[0], self._center_xy[1], self._spec.auto_open_radius_m)
 
     def _sweeps_into(self, opening_before: float, opening_after: float, blockers_xyr: np.ndarray | None) -> bool:
         """Whether moving the leaf between the two openings brings it within the safety clearance of a blocker
@@ -176,16 +184,25 @@ class DoorLeaf:
 
     def _opening_now(self) -> float:
         ramp = 0.5 * (1.0 - math.cos(math.pi * min(self._elapsed_s / self._spec.move_s, 1.0)))
-        return {
-            DoorStage.OPEN: 1.0,
-            DoorStage.CLOSING: 1.0 - ramp,
-            DoorStage.CLOSED: 0.0,
-            DoorStage.OPENING: ramp,
-        }[self._stage]
+        if self._stage == DoorStage.CLOSING:
+            return 1.0 - ramp
+        if self._stage == DoorStage.OPENING:
+            return ramp
+        return 1.0 if self._stage == DoorStage.OPEN else 0.0
 
 
 def door_segments(leaves: Sequence[DoorLeaf]) -> np.ndarray:
     """(D, 2, 2) segments ``[hinge, tip]`` of the leaves, metres (shape (0, 2, 2) for none)."""
     if not leaves:
         return np.zeros((0, 2, 2))
-    return np.stack([leaf.segment_xy() for leaf in leaves])
+    return np.array([leaf._segment() for leaf in leaves])
+
+
+@njit(cache=True)
+def _any_within(points: np.ndarray, cx: float, cy: float, radius_m: float) -> bool:
+    """Whether a point of (P, 2) ``points`` lies within ``radius_m`` of (cx, cy) (all metres)."""
+    for k in range(points.shape[0]):
+        dx, dy = points[k, 0] - cx, points[k, 1] - cy
+        if math.sqrt(dx * dx + dy * dy) <= radius_m:
+            return True
+    return False

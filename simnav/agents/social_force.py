@@ -19,6 +19,11 @@ All arrays are in the world frame (x/y on the floor), SI units. Pedestrian α ac
 
 Forces are per unit mass (m/s²). :func:`resolve_overlaps` then projects positions out of walls, circles and
 each other, so bodies never interpenetrate even where the forces are too weak.
+
+The per-step entry points (:func:`social_force_pairs`, :func:`integrate`, :func:`resolve_overlaps_pairs`) run as
+Numba kernels (:mod:`simnav.agents.kernels`); the array formulation here (:func:`social_force_pairs_reference`,
+:func:`resolve_overlaps_pairs_reference` and the functions they call) defines the model, and the kernels give the
+same results to the bit.
 """
 
 from __future__ import annotations
@@ -29,9 +34,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simnav.agents.kernels import CONTACT_MARGIN_M as KERNEL_CONTACT_MARGIN_M
+from simnav.agents.kernels import exponents, integrate_kernel, resolve_overlaps_kernel, social_force_kernel
+
 _EPS = 1e-9
 _NEGLIGIBLE_M_S2 = 1e-3  # wall forces weaker than this are skipped
-CONTACT_MARGIN_M = 1e-3
+CONTACT_MARGIN_M = KERNEL_CONTACT_MARGIN_M
 """Clearance added by :func:`resolve_overlaps` beyond touching (bodies end up at least half of it apart)."""
 _NEAR_SLACK_M = 1.0  # a projection ignores walls further than radius + this + the move from previous_xy
 
@@ -100,6 +108,15 @@ class Segments:
 
     def __len__(self) -> int:
         return len(self.start)
+
+    def extended(self, segments: np.ndarray) -> Segments:
+        """These segments followed by (D, 2, 2) ``segments``, metres (as :class:`Segments` of both together)."""
+        extra = Segments(segments)
+        out = Segments.__new__(Segments)
+        out.start = np.concatenate([self.start, extra.start])
+        out.delta = np.concatenate([self.delta, extra.delta])
+        out.inv_len2 = np.concatenate([self.inv_len2, extra.inv_len2])
+        return out
 
     def closest_points(self, points: np.ndarray, seg_idx: np.ndarray) -> np.ndarray:
         """(P, 2) closest point of segment ``seg_idx[k]`` to ``points[k]``, for (P, 2) points."""
@@ -394,7 +411,58 @@ def social_force_pairs(
     circle_velocities: np.ndarray | None,
     params: SocialForceParams,
 ) -> np.ndarray:
-    """:func:`social_force` with prepared walls and candidate (pedestrian, segment) pairs."""
+    """:func:`social_force` with prepared walls and candidate (pedestrian, segment) pairs (a Numba kernel)."""
+    pos = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+    circ = np.zeros((0, 3)) if circles is None else np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
+    if circle_velocities is None:
+        circ_vel = np.zeros((len(circ), 2))
+    else:
+        circ_vel = _broadcast(circle_velocities, (len(circ), 2))
+    n = len(pos)
+    vel, dirs, speeds = (_broadcast(a, shape) for a, shape in
+                         ((velocities, (n, 2)), (desired_dirs, (n, 2)), (desired_speeds, (n,))))
+    ped, seg, p = _as_index(ped_idx), _as_index(seg_idx), kernel_params(params)
+    walls = (segments.start, segments.delta, segments.inv_len2)
+    exps = np.exp(exponents(pos, vel, *walls, ped, seg, circ, circ_vel, p))
+    return social_force_kernel(
+        pos, vel, dirs, speeds, *walls, ped, seg, circ, circ_vel, circles is not None, p,
+        params.wall_look_ahead_m > 0.0, exps,
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def kernel_params(params: SocialForceParams) -> np.ndarray:
+    """The parameters as the float64 vector the kernels of :mod:`simnav.agents.kernels` read (read-only)."""
+    strength = params.u0_m2_s2 / params.r_m
+    reach = params.r_m * math.log(max(strength / _NEGLIGIBLE_M_S2, 1.0))
+    values = np.array([
+        params.v0_m2_s2, params.sigma_m, params.u0_m2_s2, params.r_m, params.tau_s, params.cos_half_fov,
+        params.out_of_view_weight, params.step_time_s, params.radius_m, params.wall_cutoff_m,
+        math.cos(math.radians(params.wall_merge_angle_deg)), params.wall_look_ahead_m, params.circle_steering,
+        strength, min(params.wall_cutoff_m, reach),
+    ], dtype=np.float64)
+    values.flags.writeable = False
+    return values
+
+
+def _as_index(idx: np.ndarray) -> np.ndarray:
+    """(P,) contiguous int64 indices."""
+    return np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+
+
+def social_force_pairs_reference(
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    desired_dirs: np.ndarray,
+    desired_speeds: np.ndarray,
+    segments: Segments,
+    ped_idx: np.ndarray,
+    seg_idx: np.ndarray,
+    circles: np.ndarray | None,
+    circle_velocities: np.ndarray | None,
+    params: SocialForceParams,
+) -> np.ndarray:
+    """:func:`social_force_pairs` written with numpy array operations (the reference of the kernel)."""
     velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
     desired_dirs = np.asarray(desired_dirs, dtype=float).reshape(-1, 2)
     acc = driving_force(velocities, desired_dirs, np.asarray(desired_speeds, dtype=float), params)
@@ -424,11 +492,17 @@ def integrate(
     Returns:
         New positions (N, 2) and velocities (N, 2), with ``x' = x + v'·dt``.
     """
-    v = np.asarray(velocities, dtype=float) + np.asarray(acceleration, dtype=float) * dt_s
-    cap = params.max_speed_factor * np.asarray(desired_speeds, dtype=float)
-    speed = np.sqrt(np.sum(v * v, axis=1))
-    v *= (np.minimum(speed, cap) / np.maximum(speed, _EPS))[:, None]
-    return np.asarray(positions, dtype=float) + v * dt_s, v
+    pos = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+    n = len(pos)
+    vel, acc, speeds = (_broadcast(a, shape) for a, shape in
+                        ((velocities, (n, 2)), (acceleration, (n, 2)), (desired_speeds, (n,))))
+    return integrate_kernel(pos, vel, acc, speeds, float(dt_s), float(params.max_speed_factor))
+
+
+def _broadcast(values: np.ndarray | float, shape: tuple[int, ...]) -> np.ndarray:
+    """``values`` as a contiguous float64 array of ``shape`` (broadcast as numpy would)."""
+    array = np.asarray(values, dtype=float)
+    return np.ascontiguousarray(array if array.shape == shape else np.broadcast_to(array, shape))
 
 
 def resolve_overlaps(
@@ -481,7 +555,35 @@ def resolve_overlaps_pairs(
     previous_xy: np.ndarray | None = None,
     check_crossing: np.ndarray | None = None,
 ) -> np.ndarray:
-    """:func:`resolve_overlaps` on candidate (pedestrian, segment) pairs.
+    """:func:`resolve_overlaps` on candidate (pedestrian, segment) pairs (a Numba kernel).
+
+    ``check_crossing`` (P,) marks the pairs whose segment may not be crossed on the way from ``previous_xy``
+    (static walls); moving segments (door leaves) are left to the push-out.
+    """
+    pos = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+    circ = np.zeros((0, 3)) if circles is None else np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
+    has_prev = previous_xy is not None
+    prev = np.ascontiguousarray(previous_xy, dtype=float).reshape(-1, 2) if has_prev else pos
+    guard = has_prev and check_crossing is not None
+    check = np.ascontiguousarray(check_crossing, dtype=bool).reshape(-1) if guard else np.zeros(len(ped_idx), bool)
+    return resolve_overlaps_kernel(
+        pos, float(radius_m), segments.start, segments.delta, segments.inv_len2, _as_index(ped_idx),
+        _as_index(seg_idx), circ, int(iterations), prev, has_prev, check, guard, _NEAR_SLACK_M,
+    )
+
+
+def resolve_overlaps_pairs_reference(
+    positions: np.ndarray,
+    radius_m: float,
+    segments: Segments,
+    ped_idx: np.ndarray,
+    seg_idx: np.ndarray,
+    circles: np.ndarray | None,
+    iterations: int,
+    previous_xy: np.ndarray | None = None,
+    check_crossing: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`resolve_overlaps_pairs` written with numpy array operations (the reference of the kernel).
 
     ``check_crossing`` (P,) marks the pairs whose segment may not be crossed on the way from ``previous_xy``
     (static walls); moving segments (door leaves) are left to the push-out.

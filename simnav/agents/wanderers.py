@@ -13,8 +13,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
-from simnav.agents.crowd import read_only_view, wrap_angle
+from simnav.agents.crowd import read_only_view
 from simnav.agents.roadmap import RoadmapGraph
 
 MAX_YAW_RATE_RAD_S = 1.5
@@ -117,31 +118,18 @@ class Wanderers:
         if self.count == 0:
             return
         to_next = self._roadmap.nodes_xy[self._next] - self._pos
-        dist = np.linalg.norm(to_next, axis=1)
-        error = np.where(dist > 1e-6, wrap_angle(np.arctan2(to_next[:, 1], to_next[:, 0]) - self._yaw), 0.0)
-        turn = np.minimum(np.abs(error) * min(HEADING_GAIN_1_S, 1.0 / dt_s), MAX_YAW_RATE_RAD_S)
-        rate = np.sign(error) * turn  # never past the heading within one step
-        speed = self._speed_m_s * np.maximum(np.cos(error), 0.0) ** 2
-        speed = np.minimum(speed, dist / dt_s)
-        blocked = self._blocked(obstacles_xy)
-        speed[blocked] = 0.0
-        self._yaw = wrap_angle(self._yaw + rate * dt_s)
-        self._yaw_rate = rate
-        self._vel = speed[:, None] * np.stack([np.cos(self._yaw), np.sin(self._yaw)], axis=1)
-        self._pos = self._pos + self._vel * dt_s
-        self._update_nodes(blocked, dt_s)
-
-    def _blocked(self, obstacles_xy: np.ndarray | None) -> np.ndarray:
-        """(N,) True where a point lies within STOP_DISTANCE_M ahead in the ±45° cone."""
         points = self._pos
         if obstacles_xy is not None:
             points = np.concatenate([np.asarray(obstacles_xy, dtype=float).reshape(-1, 2), points])
         rel = points[None, :, :] - self._pos[:, None, :]
-        dist = np.linalg.norm(rel, axis=2)
-        bearing = wrap_angle(np.arctan2(rel[..., 1], rel[..., 0]) - self._yaw[:, None])
-        close = (dist <= STOP_DISTANCE_M) & (dist > 1e-9)  # a robot does not block itself
-        ahead = close & (np.abs(bearing) <= STOP_HALF_ANGLE_RAD)
-        return np.any(ahead, axis=1)
+        # the bearings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
+        heading = np.arctan2(to_next[:, 1], to_next[:, 0])
+        bearing = np.arctan2(rel[..., 1], rel[..., 0])
+        self._yaw, self._yaw_rate, self._vel, self._pos, blocked = _drive(
+            self._pos, self._yaw, to_next, heading, rel, bearing, self._speed_m_s, dt_s,
+            min(HEADING_GAIN_1_S, 1.0 / dt_s),
+        )
+        self._update_nodes(blocked, dt_s)
 
     def _update_nodes(self, blocked: np.ndarray, dt_s: float) -> None:
         self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
@@ -204,3 +192,46 @@ class Wanderers:
             return False
         too_close = 2 * self._radius_m + SPAWN_GAP_M
         return not spots or float(np.min(np.linalg.norm(np.array(spots) - xy, axis=1))) >= too_close
+
+
+@njit(cache=True)
+def _wrap(angle_rad: float) -> float:
+    """``angle_rad`` wrapped to [-π, π) as :func:`simnav.agents.crowd.wrap_angle` does."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def _drive(pos: np.ndarray, yaw: np.ndarray, to_next: np.ndarray, heading: np.ndarray, rel: np.ndarray,
+           bearing: np.ndarray, speed_m_s: float, dt_s: float,
+           gain_1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One kinematic step of N robots: new yaws (rad), yaw rates (rad/s), velocities (m/s), positions (m) and
+    whether each was blocked.
+
+    Args:
+        pos: (N, 2) metres. yaw: (N,) rad. to_next: (N, 2) offsets to the next nodes, metres.
+        heading: (N,) their directions, rad. rel: (N, P, 2) offsets to the P points that may block, metres.
+        bearing: (N, P) their directions, rad. speed_m_s: cruising speed. dt_s: step, s.
+        gain_1_s: heading gain, at most 1/dt_s.
+    """
+    n, p = rel.shape[0], rel.shape[1]
+    new_yaw, rate, vel, new_pos = np.empty(n), np.empty(n), np.empty((n, 2)), np.empty((n, 2))
+    blocked = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        # turn towards the next node, slowing down while the heading is off
+        dist = math.sqrt(to_next[i, 0] * to_next[i, 0] + to_next[i, 1] * to_next[i, 1])
+        error = _wrap(heading[i] - yaw[i]) if dist > 1e-6 else 0.0
+        turn = min(abs(error) * gain_1_s, MAX_YAW_RATE_RAD_S)
+        rate[i] = (1.0 if error > 0 else -1.0 if error < 0 else 0.0) * turn  # never past the heading in one step
+        speed = min(speed_m_s * max(math.cos(error), 0.0) ** 2, dist / dt_s)
+        # stop while a point is close ahead (a robot does not block itself)
+        for k in range(p):
+            d = math.sqrt(rel[i, k, 0] * rel[i, k, 0] + rel[i, k, 1] * rel[i, k, 1])
+            if d <= STOP_DISTANCE_M and d > 1e-9 and abs(_wrap(bearing[i, k] - yaw[i])) <= STOP_HALF_ANGLE_RAD:
+                blocked[i] = True
+        if blocked[i]:
+            speed = 0.0
+        # semi-implicit Euler
+        new_yaw[i] = _wrap(yaw[i] + rate[i] * dt_s)
+        vel[i, 0], vel[i, 1] = speed * math.cos(new_yaw[i]), speed * math.sin(new_yaw[i])
+        new_pos[i, 0], new_pos[i, 1] = pos[i, 0] + vel[i, 0] * dt_s, pos[i, 1] + vel[i, 1] * dt_s
+    return new_yaw, rate, vel, new_pos, blocked
