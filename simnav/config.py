@@ -23,6 +23,16 @@ class FrozenModel(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
 
+def check_whole_multiples(model: BaseModel, names: tuple[str, ...], base: str) -> None:
+    """Raise ValueError unless every field in ``names`` is a whole multiple (>= 1) of the field ``base``
+    (e.g. control and agent periods of the physics step)."""
+    base_value = getattr(model, base)
+    for name in names:
+        ratio = getattr(model, name) / base_value
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise ValueError(f"{name}={getattr(model, name)} must be a whole multiple of {base}={base_value}")
+
+
 def format_validation_error(err: ValidationError, source: str) -> str:
     """One readable message per failing field: ``source: field.path: message (got value)``."""
     lines = []

@@ -12,6 +12,7 @@ from typing import Any
 
 import simnav
 from simnav.batch.jobs import TIMING_FIELDS, Job, MissionJob
+from simnav.io import json_finite
 
 INCIDENT_KINDS = ("static", "door", "people", "robots")
 
@@ -57,7 +58,7 @@ class BatchReport:
 
     def to_json(self) -> str:
         data = {"simnav_version": simnav.__version__, **asdict(self)}
-        return json.dumps(_finite(data), indent=2)
+        return json.dumps(json_finite(data), indent=2)
 
     def write(self, out_dir: Path) -> None:
         """``batch.json`` (summary and rows) and ``rows.csv`` into ``out_dir``."""
@@ -104,12 +105,3 @@ def _sim_time(rows: list[dict[str, Any]], task: str) -> float:
     return sum(r["duration_s" if task == "mission" else "sim_time_s"] for r in rows)
 
 
-def _finite(value: Any) -> Any:
-    """JSON has no inf/nan: they become null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    return value

@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from simnav.config import FrozenModel
+from simnav.config import FrozenModel, check_whole_multiples
 from simnav.robot.spec import RobotSpec
 from simnav.world.schema import WorldSpec
 
@@ -84,11 +84,7 @@ class NavEnvConfig(FrozenModel):
     def _check(self) -> NavEnvConfig:
         if self.goal_max_m <= self.goal_min_m:
             raise ValueError(f"goal_max_m={self.goal_max_m} must exceed goal_min_m={self.goal_min_m}")
-        for name in ("control_dt_s", "agent_dt_s"):
-            ratio = getattr(self, name) / self.physics_dt_s
-            if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be a whole multiple of "
-                                 f"physics_dt_s={self.physics_dt_s}")
+        check_whole_multiples(self, ("control_dt_s", "agent_dt_s"), "physics_dt_s")
         return self
 
     @property

@@ -8,6 +8,7 @@ there.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from simnav.errors import SimnavError
@@ -22,6 +23,17 @@ class MissingDataError(SimnavError, FileNotFoundError):
 
     def __str__(self) -> str:  # FileNotFoundError would format (errno, strerror) tuples
         return str(self.args[0]) if self.args else ""
+
+
+def json_finite(value):
+    """``value`` (nested dicts and lists) with every inf/nan float replaced by None: JSON has neither."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [json_finite(v) for v in value]
+    return value
 
 
 def format_error(path: str | Path, line_no: int | None, message: str) -> DataFormatError:
@@ -61,6 +73,7 @@ __all__ = [
     "TruePosStream",
     "TumWriter",
     "format_error",
+    "json_finite",
     "load_pixel_motion",
     "read_carmen",
     "read_tum",

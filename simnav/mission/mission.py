@@ -27,7 +27,7 @@ from pydantic import Field, model_validator
 import simnav
 from simnav.config import FrozenModel, dump_yaml
 from simnav.geometry import se2
-from simnav.io import TumWriter
+from simnav.io import TumWriter, json_finite
 from simnav.mission.observer import MissionFrame, MissionObserver
 from simnav.mission.pose import PoseSource
 from simnav.navigation.bands import planar_bands, robot_bands
@@ -132,18 +132,7 @@ class MissionReport:
     def to_json(self) -> str:
         data = asdict(self)
         data["success_rate"] = self.success_rate
-        return json.dumps(_finite(data), indent=2)
-
-
-def _finite(value):
-    """JSON has no inf/nan: they become null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    return value
+        return json.dumps(json_finite(data), indent=2)
 
 
 @dataclass

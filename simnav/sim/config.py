@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from simnav.config import FrozenModel
+from simnav.config import FrozenModel, check_whole_multiples
 
 
 class SimConfig(FrozenModel):
@@ -30,11 +30,7 @@ class SimConfig(FrozenModel):
 
     @model_validator(mode="after")
     def _multiples(self) -> SimConfig:
-        for name in ("control_dt_s", "agent_dt_s"):
-            ratio = getattr(self, name) / self.physics_dt_s
-            if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be a whole multiple of "
-                                 f"physics_dt_s={self.physics_dt_s}")
+        check_whole_multiples(self, ("control_dt_s", "agent_dt_s"), "physics_dt_s")
         return self
 
     @property
