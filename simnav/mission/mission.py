@@ -237,8 +237,10 @@ class _MissionRunner:
         route = self._new_target()
         while not self._finished():
             cmd = self._control_step()
-            for obs in observers:
-                obs.step(self._frame(cmd))
+            if observers:
+                frame = self._frame(cmd)
+                for obs in observers:
+                    obs.step(frame)
             self._record_gt()
             if self.sim.time_s >= next_clearance:
                 self._measure_clearance()
