@@ -1,6 +1,7 @@
 """Simulator micro-benchmarks and the real-time factor of ``simnav record``.
 
-Prints median wall times of: one physics step; a 2D lidar scan of 682 and 1080 rays in the office; a depth frame
+Prints median wall times of: one physics step; a 2D lidar scan of 682 and 1080 rays in the office (cast on the
+geoms' cross-sections, as the simulator does, and with ``mj_multiRay``, on the same scene); a depth frame
 at QVGA and QQVGA (render only, and the whole reading with noise, segmentation and per-pixel motion); an RGB QVGA
 render; one social-force update of 20 people; and the real-time factor of ``simnav record`` in the office with 10
 people, a 10 Hz lidar and a 15 Hz QQVGA depth camera (depth only, as on a robot with a depth sensor).
@@ -48,12 +49,16 @@ def bench_physics(world, repeats: int) -> float:
         return median_ms(lambda: mujoco.mj_step(sim.model, sim.data), repeats * 20)
 
 
-def bench_lidar(world, preset: str, repeats: int) -> float:
+def bench_lidar(world, preset: str, repeats: int) -> tuple[float, float]:
+    """Median ms of one scan cast on cross-sections and with mj_multiRay (the same scene, the same rays)."""
     robot = load_robot("giraff", [f"sensors.laser_front.preset={preset}", "sensors.camera.rate_hz=0.001"])
     with Simulator(world, robot, SimConfig(pedestrians=10)) as sim:
         lidar = next(s for s in sim.sensors if isinstance(s, Lidar2D))
         rng = np.random.default_rng(0)
-        return median_ms(lambda: lidar.capture(sim.data, 0.0, rng), repeats)
+        planar = median_ms(lambda: lidar.capture(sim.data, 0.0, rng), repeats)
+        lidar._caster.planar = False
+        multiray = median_ms(lambda: lidar.capture(sim.data, 0.0, rng), repeats)
+        return planar, multiray
 
 
 def bench_camera(world, preset: str, rgb: bool, repeats: int) -> tuple[float, float]:
@@ -94,7 +99,9 @@ def main() -> None:
     rows: list[tuple[str, str]] = []
     rows.append(("physics step (office, 10 people)", f"{1e3 * bench_physics(world, args.repeats):.1f} us"))
     for preset, beams in (("hokuyo_urg04lx", 682), ("hokuyo_utm30lx", 1080)):
-        rows.append((f"2D lidar, {beams} rays (office)", f"{bench_lidar(world, preset, args.repeats):.2f} ms"))
+        planar, multiray = bench_lidar(world, preset, args.repeats)
+        rows.append((f"2D lidar, {beams} rays (office): cross-sections / mj_multiRay",
+                     f"{planar:.3f} / {multiray:.2f} ms ({multiray / planar:.0f}x)"))
     for preset, label in (("kinect_qvga", "QVGA 320x240"), ("kinect_qqvga", "QQVGA 160x120")):
         render, full = bench_camera(world, preset, False, args.repeats)
         rows.append((f"depth {label}: render (depth + body ids)", f"{render:.2f} ms"))
