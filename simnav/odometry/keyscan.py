@@ -18,7 +18,12 @@ scanners. The working region is therefore relative to it: ``P(good | t, r) >= p_
 the motion may cost at most a fraction ``1 - p_ratio`` of the alignments that would succeed without it.
 
 The fitted models ship as JSON in ``keyscan_models/<preset>.json`` (see ``scripts/fit_keyscan_models.py``).
-Pure numpy and json.
+
+The working region is learned from random scan pairs, so it bounds the error of an *average* view. Where the
+view changes abruptly (a doorway, a corner) a motion well inside it can leave the keyscan sharing little with
+the new scan, and the keyscan alignment fails. :func:`keyscan_overlap` measures what the keyscan actually
+observed of the new scan's view; :class:`simnav.odometry.srf.SRFOdometry` in mode KA drops a keyscan that
+explains too little of it (``SRFConfig.keyscan_min_overlap``).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from simnav.errors import ConfigError, UnknownNameError
+from simnav.odometry.rangeflow import LevelGeometry, grid_index
 
 MODEL_DIR = Path(__file__).resolve().parent / "keyscan_models"
 """Folder of the shipped models, one ``<preset>.json`` per 2D lidar preset."""
@@ -368,3 +374,53 @@ class LearnedKeyscanPolicy:
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if self.inside(*point(mid)) else (lo, mid)
         return lo
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Overlap
+
+
+def keyscan_overlap(key_ranges_m: np.ndarray, key_geom: LevelGeometry, T_new_key: np.ndarray,
+                    new_ranges_m: np.ndarray, new_geom: LevelGeometry, tolerance_m: float, bin_beams: int) -> float:
+    """Share of the new scan's view that the keyscan observed too.
+
+    Every valid keyscan point is moved into the new scanner frame and compared with the new beam nearest its
+    direction: it is a correspondence when the two ranges differ by less than ``tolerance_m``. The new scan's
+    beams are grouped into bins of ``bin_beams`` consecutive beams (so that a surface seen closer than from the
+    keyscan, whose keyscan points then spread over more beams, still counts as observed); the overlap is the
+    share of bins with a valid new beam that hold a correspondence. Only real keyscan points count: the keyscan
+    rendered by :func:`simnav.odometry.rangeflow.warp_scan` bridges depth discontinuities with its segments and
+    so fills the directions the keyscan never saw (e.g. what lies beyond a doorway) with surfaces.
+
+    Args:
+        key_ranges_m: (n_k,) keyscan ranges, 0 = invalid.
+        key_geom: their beam geometry (keyscan scanner frame).
+        T_new_key: (3, 3) pose of the keyscan scanner frame in the new scanner frame.
+        new_ranges_m: (n,) new ranges, 0 = invalid.
+        new_geom: their beam geometry (new scanner frame).
+        tolerance_m: largest range difference of a correspondence, m.
+        bin_beams: beams per bin (>= 1).
+
+    Returns:
+        The overlap in [0, 1]; 0 when the new scan has no valid beam.
+    """
+    # 1. Keyscan points in the new scanner frame, and the new beam nearest each.
+    valid = key_ranges_m > 0
+    r = key_ranges_m[valid]
+    x, y = r * key_geom.cos[valid], r * key_geom.sin[valid]
+    xn = T_new_key[0, 0] * x + T_new_key[0, 1] * y + T_new_key[0, 2]
+    yn = T_new_key[1, 0] * x + T_new_key[1, 1] * y + T_new_key[1, 2]
+    u = grid_index(np.arctan2(yn, xn), new_geom)
+    seen = np.isfinite(u)
+    beam = np.rint(u[seen]).astype(np.int64) % new_geom.n
+    # 2. Correspondences: the new beam is valid and its range agrees.
+    r_new = new_ranges_m[beam]
+    match = (r_new > 0) & (np.abs(np.hypot(xn[seen], yn[seen]) - r_new) < tolerance_m)
+    # 3. Share of the bins with a valid new beam that hold a correspondence.
+    bins = (new_geom.n + bin_beams - 1) // bin_beams
+    observed = np.zeros(bins, dtype=bool)
+    observed[np.flatnonzero(new_ranges_m > 0) // bin_beams] = True
+    matched = np.zeros(bins, dtype=bool)
+    matched[beam[match] // bin_beams] = True
+    total = np.count_nonzero(observed)
+    return float(np.count_nonzero(matched) / total) if total else 0.0

@@ -7,7 +7,10 @@ filters its solution in the eigenspace of its covariance (3.106, 3.107).
 
 Modes (§3.G.5, §3.G.9): ``"CA"`` aligns the new scan with the previous one; ``"KA"`` with the keyscan warped
 into the previous scan's frame; ``"MA"`` with both jointly (3.99). A :class:`KeyscanPolicy` decides when the
-newest scan becomes the keyscan.
+newest scan becomes the keyscan from its motion since the keyscan (§3.G.7). In mode KA the keyscan must also
+share the new scan's view: when the overlap of the two (:func:`simnav.odometry.keyscan.keyscan_overlap`) falls
+below ``keyscan_min_overlap``, e.g. as the robot leaves a room through a doorway, the new scan is aligned with
+the previous scan instead and becomes the keyscan.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from simnav.odometry.base import OdometryEstimate
-from simnav.odometry.keyscan import LearnedKeyscanPolicy, available_presets
+from simnav.odometry.keyscan import LearnedKeyscanPolicy, available_presets, keyscan_overlap
 from simnav.odometry.rangeflow import (
     MIN_ROWS,
     Alignment,
@@ -102,7 +105,19 @@ class SRFConfig(RangeFlowConfig):
         sensor_sigma_m: ``sigma_s`` of the pre-weights (3.96), m.
         preweight_kd: ``K_D`` (3.96).
         preweight_k2d: ``K_2D`` (3.96).
-        keyscan_policy: when to take a new keyscan (modes KA and MA).
+        keyscan_policy: when to take a new keyscan, from the motion since the current one (modes KA and MA).
+        keyscan_min_overlap: mode KA: after aligning a new scan with the keyscan, the share of the new scan's
+            view that the keyscan observed too (:func:`simnav.odometry.keyscan.keyscan_overlap`, at the estimated
+            pose) must be at least this; otherwise the new scan is aligned again with the previous scan alone
+            and becomes the keyscan. The motion-based working region is learned on average views; where the
+            view changes faster (leaving a room through a doorway) the keyscan alignment fails while the motion
+            is still inside it. 0.9 is about the 5 % quantile of the overlap on maps without doorways and a few
+            scans ahead of the failures at doorways (0.5-0.7, 5 Hz). 0 disables the check. Mode MA keeps
+            the previous scan's constraints in every solve (3.99) and does not use the check.
+        keyscan_overlap_tolerance_m: largest range difference between a keyscan point and the new beam it
+            projects onto that still counts as the same surface, m (3 sigma of very noisy scans, 0.1 m).
+        keyscan_overlap_bin_deg: width of the bins of beams in which the overlap is counted, deg (wide enough
+            that a surface seen closer than from the keyscan still gets a keyscan point in every bin).
         symmetric: the symmetric range flow constraint (3.83 / 3.91); False = the standard one (3.80), geometry
             of the reference scan (the NSRF variant of Table 3.14).
         preweighting: pre-weight the constraints (3.96 / 3.97); False = unit weights (Table 3.12).
@@ -123,6 +138,9 @@ class SRFConfig(RangeFlowConfig):
     preweight_kd: float = 0.01
     preweight_k2d: float = 2e-4
     keyscan_policy: KeyscanPolicy | str = "auto"
+    keyscan_min_overlap: float = 0.9
+    keyscan_overlap_tolerance_m: float = 0.3
+    keyscan_overlap_bin_deg: float = 2.0
     symmetric: bool = True
     preweighting: bool = True
     robust: bool = True
@@ -136,6 +154,9 @@ class SRFConfig(RangeFlowConfig):
         require(self.mad_factor > 0, "mad_factor must be > 0")
         require(self.filter_kl >= 0 and self.filter_ke >= 0, "filter_kl and filter_ke must be >= 0")
         require(self.sensor_sigma_m > 0, "sensor_sigma_m must be > 0")
+        require(0 <= self.keyscan_min_overlap <= 1, "keyscan_min_overlap must be in [0, 1]")
+        require(self.keyscan_overlap_tolerance_m > 0 and self.keyscan_overlap_bin_deg > 0,
+                "keyscan_overlap_tolerance_m and keyscan_overlap_bin_deg must be > 0")
         require(isinstance(self.keyscan_policy, KeyscanPolicy) or self.keyscan_policy == "auto"
                 or self.keyscan_policy in available_presets(),
                 "keyscan_policy must be 'auto', a lidar preset with a learned model "
@@ -167,6 +188,7 @@ class SRFOdometry(RangeFlowOdometry):
         self._T_key_prev = np.eye(3)  # pose of the previous scan in the keyscan frame
         self._key_is_prev = True
         self._key_failed = False
+        self._overlap: float | None = None  # keyscan overlap of the scan being processed (None: not checked)
 
     def _levels(self, beams: int) -> int:
         if self.config.levels is not None:
@@ -174,10 +196,11 @@ class SRFOdometry(RangeFlowOdometry):
         return max(1, math.ceil(math.log2(beams) - 4.3))
 
     def _align(self, ref: ScanFrame, new: ScanFrame, xi_prior: np.ndarray) -> Alignment:
-        """Coarse-to-fine alignment of ``new`` with the previous scan and/or the warped keyscan."""
+        """Coarse-to-fine alignment of ``new`` with the previous scan and/or the warped keyscan; in mode KA with
+        the previous scan when the keyscan overlaps the new scan too little."""
         # 1. References: the previous scan, the keyscan rendered from the previous scan's pose, or both.
-        refs = [ref.pyramid]
-        self._key_failed = False
+        refs, key_w = [ref.pyramid], None
+        self._key_failed, self._overlap = False, None
         if self.config.mode != "CA" and self._key is not None and not self._key_is_prev:
             key_w = self._warped_key(ref)
             if key_w is None:
@@ -185,7 +208,25 @@ class SRFOdometry(RangeFlowOdometry):
             else:
                 refs = [key_w] if self.config.mode == "KA" else [ref.pyramid, key_w]
         # 2. Estimate-and-warp through the pyramid.
-        return coarse_to_fine(refs, ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+        alignment = coarse_to_fine(refs, ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+        if key_w is None or self.config.mode != "KA" or self.config.keyscan_min_overlap <= 0:
+            return alignment
+        # 3. Overlap check (KA): a keyscan that saw too little of the new view is dropped; use the previous scan.
+        self._overlap = self._key_overlap(new, self._T_key_prev @ alignment.T_ref_new)
+        if self._overlap >= self.config.keyscan_min_overlap:
+            return alignment
+        self._key_failed = True
+        return coarse_to_fine([ref.pyramid], ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+
+    def _key_overlap(self, new: ScanFrame, T_key_new: np.ndarray) -> float:
+        """:func:`simnav.odometry.keyscan.keyscan_overlap` of the keyscan and ``new`` at full resolution, with
+        ``new`` at ``T_key_new`` ((3, 3), scanner frames) in the keyscan frame; bins of
+        ``keyscan_overlap_bin_deg``."""
+        cfg, geom = self.config, new.geoms[0]
+        step = geom.uniform_step_rad or float(np.mean(geom.spacing_rad))
+        bin_beams = max(1, round(math.radians(cfg.keyscan_overlap_bin_deg) / step))
+        return keyscan_overlap(self._key.pyramid[0], self._key.geoms[0], se2_inverse(T_key_new), new.pyramid[0],
+                               geom, cfg.keyscan_overlap_tolerance_m, bin_beams)
 
     def _warped_key(self, ref: ScanFrame) -> list[np.ndarray] | None:
         """Keyscan pyramid warped into the previous scan's frame keeping the farthest points (§3.G.5), or None
@@ -221,8 +262,9 @@ class SRFOdometry(RangeFlowOdometry):
 
     def _after_scan(self, new: ScanFrame | None, T_prev_new: np.ndarray, measured: bool) -> dict:
         """Keyscan bookkeeping (§3.G.7): move the previous-scan pose and replace the keyscan when the policy,
-        a failed keyscan warp or a lost track asks for it."""
+        a failed keyscan warp, a too small keyscan overlap or a lost track asks for it."""
         failed, self._key_failed = self._key_failed, False
+        overlap, self._overlap = self._overlap, None
         if self.config.mode == "CA":
             return {"mode": "CA"}
         if new is None or self._key is None or not measured or failed:
@@ -235,7 +277,7 @@ class SRFOdometry(RangeFlowOdometry):
                 updated = self._set_key(new)
             else:
                 self._T_key_prev, self._key_is_prev, updated = T_key_new, False, False
-        return {"mode": self.config.mode, "new_keyscan": updated}
+        return {"mode": self.config.mode, "new_keyscan": updated, "keyscan_overlap": overlap}
 
     def process(self, scan: LaserScan) -> OdometryEstimate:
         """Estimate the motion since the previous scan (see :class:`simnav.odometry.base.ScanOdometry`)."""

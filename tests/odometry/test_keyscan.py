@@ -1,4 +1,5 @@
-"""Learned keyscan policy (thesis §3.G.7): shipped models, monotonicity, the constrained fit, loading, use in SRF."""
+"""Learned keyscan policy (thesis §3.G.7): shipped models, monotonicity, the constrained fit, loading, use in SRF;
+the keyscan overlap."""
 
 from __future__ import annotations
 
@@ -16,9 +17,11 @@ from simnav.odometry.keyscan import (
     available_presets,
     fit_logistic,
     fit_working_region,
+    keyscan_overlap,
     monomials,
     sigmoid,
 )
+from simnav.odometry.rangeflow import level_geometry
 from simnav.odometry.srf import KeyscanPolicy, SRFOdometry
 from simnav.sensors.presets import LIDAR2D_PRESETS
 
@@ -204,3 +207,33 @@ def test_srf_picks_the_learned_model_of_the_matching_preset():
     assert isinstance(odometry._policy, LearnedKeyscanPolicy)
     with pytest.raises(ConfigError, match="keyscan_policy"):
         SRFOdometry(keyscan_policy="no_such_scanner")
+
+
+def _overlap_of(sim, T_key: np.ndarray, T_new: np.ndarray, key_valid: np.ndarray | None = None) -> float:
+    """keyscan_overlap of the scans cast from base poses T_key and T_new (scanner at the base origin), 2-degree
+    bins, 0.3 m tolerance; ``key_valid`` masks keyscan beams."""
+    geom = level_geometry(sim.angles_rad, circular=False)
+    key = sim.scan(T_key).ranges_m.astype(np.float64)
+    new = sim.scan(T_new).ranges_m.astype(np.float64)
+    if key_valid is not None:
+        key = np.where(key_valid, key, 0.0)
+    return keyscan_overlap(key, geom, se2.inverse(T_new) @ T_key, new, geom, 0.3, 8)
+
+
+def test_overlap_of_a_view_with_itself_is_one_and_falls_with_what_the_keyscan_missed(rangesim):
+    sim = rangesim.ScanSimulator(rangesim.l_room(), rangesim.uniform_angles(1080, 270))
+    T = se2.from_xy_yaw(2.5, 2.2, 0.3)
+    assert _overlap_of(sim, T, T) == 1.0
+    assert _overlap_of(sim, T, T @ se2.from_xy_yaw(0.05, 0.02, 0.03)) > 0.97  # a small motion changes little
+    left_half = np.arange(1080) >= 540
+    assert _overlap_of(sim, T, T, key_valid=left_half) == pytest.approx(0.5, abs=0.01)  # bins, not beams
+    assert _overlap_of(sim, T, T, key_valid=np.zeros(1080, dtype=bool)) == 0.0
+
+
+def test_overlap_needs_agreeing_ranges_and_a_valid_new_scan(rangesim):
+    sim = rangesim.ScanSimulator(rangesim.l_room(), rangesim.uniform_angles(1080, 270))
+    geom = level_geometry(sim.angles_rad, circular=False)
+    r = sim.scan(se2.from_xy_yaw(2.5, 2.2, 0.3)).ranges_m.astype(np.float64)
+    assert keyscan_overlap(r, geom, np.eye(3), r + 0.25, geom, 0.3, 8) == 1.0
+    assert keyscan_overlap(r, geom, np.eye(3), r + 0.35, geom, 0.3, 8) == 0.0  # another surface
+    assert keyscan_overlap(r, geom, np.eye(3), np.zeros_like(r), geom, 0.3, 8) == 0.0
