@@ -3,28 +3,48 @@
 A pure-numpy ray caster renders a 6 x 5 x 3 m room with value-noise textures, four static boxes (furniture) and a
 0.4 x 0.7 x 1.7 m box walking at 1.5 m/s across the view (about 30 % of the image) — the scene of
 ``tests/odometry/test_vosf.py``. The camera (60 degree horizontal field of view, 30 Hz) rests for one frame, then
-moves 1.6 cm and 0.73 degrees per frame. Every resolution runs the same trajectory, pinned to one CPU core with one
-thread per library. Per resolution the script prints the median and p95 wall time per frame (the first frame only
-builds its pyramid and clusters and is left out), the median CPU time of the thread (less sensitive to other load
-on the machine), the mean error of the frame-to-frame motion against ground truth and the share of the walking
-box's pixels flagged moving; each resolution runs ``--repeats`` times and the pass with the lowest median is kept.
-With ``--cold`` a fresh process with an empty Numba cache also times the first two frames (compiling the kernels).
+moves 1.6 cm and 0.73 degrees per frame. Every resolution runs the same trajectory, pinned to ``--threads`` CPU
+cores (default 1) with that many threads per library: Numba's per-pixel kernels split their loops over the finest
+QVGA level between them, with the same numbers for any thread count (idle threads sleep: OMP_WAIT_POLICY=passive).
+Per resolution the script prints the median and p95 wall time per frame (the first frame only builds its pyramid and
+clusters and is left out), the median CPU time of the calling thread ("cpu", less sensitive to other load on the
+machine; with several threads, its share of the work: it sleeps while waiting for the others) and of all threads
+("all cpu": the total work), the mean error of the frame-to-frame motion against ground truth and the share of the
+walking box's pixels flagged moving; each resolution runs ``--repeats`` times and the pass with the lowest median is
+kept. With ``--cold`` a fresh process with an empty Numba cache also times the first two frames (compiling the
+kernels).
 
-    python scripts/bench_vosf_runtime.py [--frames 40] [--resolutions qqvga qvga] [--repeats 3] [--cold]
+    python scripts/bench_vosf_runtime.py [--threads 1] [--frames 40] [--resolutions qqvga qvga] [--repeats 3] [--cold]
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
+
+def _threads_argument(argv: list[str]) -> int:
+    """The value of ``--threads`` (1 without it), read before Numba is imported: its thread pool size is fixed then."""
+    for i, arg in enumerate(argv):
+        if arg.startswith("--threads="):
+            value = arg.partition("=")[2]
+        elif arg == "--threads" and i + 1 < len(argv):
+            value = argv[i + 1]
+        else:
+            continue
+        return int(value) if value.isdigit() and int(value) >= 1 else 1  # argparse reports a bad value
+    return 1
+
+
+THREADS = _threads_argument(sys.argv)
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")  # one core: no library may spread a frame over threads
+    os.environ[_var] = str(THREADS)  # no library may spread a frame over more threads than pinned cores
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")  # as simnav.odometry.vosf_kernels sets it: idle threads sleep
 
 import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 
@@ -120,13 +140,32 @@ def make_frames(n: int, h: int, w: int) -> tuple[list[RGBDFrame], list[np.ndarra
 
 
 # ---------------------------------------------------------------------------------------------- timing
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("must be >= 1")
+    return value
+
+
+def pin_cores(n: int) -> set[int]:
+    """Pins the process (and the threads it starts later) to the first n cores it may run on; returns them."""
+    if not hasattr(os, "sched_setaffinity"):
+        return set(range(n))
+    allowed = sorted(os.sched_getaffinity(0))
+    if len(allowed) < n:
+        raise SystemExit(f"--threads {n}: only {len(allowed)} core(s) available")
+    os.sched_setaffinity(0, set(allowed[:n]))
+    return set(allowed[:n])
+
+
 def run(frames: list[RGBDFrame], poses: list[np.ndarray], repeats: int, config: dict) -> dict:
     """Runs Joint-VO-SF ``repeats`` times over the frames (fresh instances after a warm-up pass on 3 frames).
 
     Returns:
-        ``median_ms``, ``p95_ms`` (wall) and ``cpu_median_ms`` per aligned frame of the pass with the lowest wall
-        median; ``err_mm`` / ``err_deg``: mean error of the frame-to-frame motions; ``moving``: share of the walking
-        box's pixels flagged moving; ``static_moving``: share of the other pixels flagged moving.
+        ``median_ms``, ``p95_ms`` (wall), ``cpu_median_ms`` (calling thread) and ``all_cpu_median_ms`` (all
+        threads) per aligned frame of the pass with the lowest wall median; ``err_mm`` / ``err_deg``: mean error of
+        the frame-to-frame motions; ``moving``: share of the walking box's pixels flagged moving;
+        ``static_moving``: share of the other pixels flagged moving.
     """
     from simnav.odometry.vosf import JointVOSF
 
@@ -135,15 +174,16 @@ def run(frames: list[RGBDFrame], poses: list[np.ndarray], repeats: int, config: 
         warm.process(f)
     best = None
     for _ in range(repeats):
-        odo, wall, cpu, est = JointVOSF(**config), [], [], []
+        odo, wall, cpu, all_cpu, est = JointVOSF(**config), [], [], [], []
         for f in frames:
-            t0, c0 = time.perf_counter(), time.thread_time()
+            t0, c0, a0 = time.perf_counter(), time.thread_time(), time.process_time()
             est.append(odo.process(f))
             wall.append(time.perf_counter() - t0)
             cpu.append(time.thread_time() - c0)
-        r = (1e3 * np.array(wall[1:]), 1e3 * np.array(cpu[1:]), est)
+            all_cpu.append(time.process_time() - a0)
+        r = (1e3 * np.array(wall[1:]), 1e3 * np.array(cpu[1:]), 1e3 * np.array(all_cpu[1:]), est)
         best = r if best is None or np.median(r[0]) < np.median(best[0]) else best
-    wall_ms, cpu_ms, est = best
+    wall_ms, cpu_ms, all_cpu_ms, est = best
     errs, moving, static_moving = [], [], []
     for i in range(1, len(frames)):
         E = se3.inverse(se3.inverse(poses[i - 1]) @ poses[i]) @ se3.inverse(est[i - 1].T_odom_camera) @ est[
@@ -155,9 +195,9 @@ def run(frames: list[RGBDFrame], poses: list[np.ndarray], repeats: int, config: 
         static_moving.append(mask[~walker].mean())
     errs = np.array(errs)
     return {"median_ms": float(np.median(wall_ms)), "p95_ms": float(np.percentile(wall_ms, 95)),
-            "cpu_median_ms": float(np.median(cpu_ms)), "err_mm": float(errs[:, 0].mean()),
-            "err_deg": float(errs[:, 1].mean()), "moving": float(np.mean(moving)),
-            "static_moving": float(np.mean(static_moving))}
+            "cpu_median_ms": float(np.median(cpu_ms)), "all_cpu_median_ms": float(np.median(all_cpu_ms)),
+            "err_mm": float(errs[:, 0].mean()), "err_deg": float(errs[:, 1].mean()),
+            "moving": float(np.mean(moving)), "static_moving": float(np.mean(static_moving))}
 
 
 def cold_child(resolution: str) -> None:
@@ -177,14 +217,15 @@ def cold_child(resolution: str) -> None:
 def cold(resolution: str) -> dict:
     """:func:`cold_child` in a fresh interpreter with an empty Numba cache."""
     with tempfile.TemporaryDirectory() as cache:
-        proc = subprocess.run([sys.executable, __file__, "--cold-child", resolution], capture_output=True, text=True,
-                              check=True, env=dict(os.environ, NUMBA_CACHE_DIR=cache))
+        proc = subprocess.run([sys.executable, __file__, "--threads", str(THREADS), "--cold-child", resolution],
+                              capture_output=True, text=True, check=True, env=dict(os.environ, NUMBA_CACHE_DIR=cache))
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 # ---------------------------------------------------------------------------------------------- report
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=_positive, default=1, help="CPU cores pinned and threads per library")
     parser.add_argument("--frames", type=int, default=40, help="frames per sequence")
     parser.add_argument("--resolutions", nargs="+", default=["qqvga", "qvga"], choices=list(RESOLUTIONS))
     parser.add_argument("--repeats", type=int, default=3, help="passes per resolution; the lowest median is kept")
@@ -192,14 +233,17 @@ def main() -> None:
     parser.add_argument("--cold", action="store_true", help="time the first frames with an empty Numba cache")
     parser.add_argument("--cold-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    cores = pin_cores(args.threads)
     if args.cold_child:
         cold_child(args.cold_child)
         return
-    table = Table(title="Joint-VO-SF runtime per frame, one core")
-    for c in ("resolution", "variant", "median ms", "p95 ms", "cpu median ms", "err mm", "err deg", "walker moving",
-              "others moving", "cold frames 1-2 s"):
+    import numba
+
+    print(f"mode: {args.threads} thread(s) pinned to core(s) {sorted(cores)}; Numba {numba.get_num_threads()} "
+          "thread(s)")
+    table = Table(title=f"Joint-VO-SF runtime per frame, {args.threads} core(s)")
+    for c in ("resolution", "variant", "median ms", "p95 ms", "cpu median ms", "all cpu median ms", "err mm",
+              "err deg", "walker moving", "others moving", "cold frames 1-2 s"):
         table.add_column(c, justify="left" if c in ("resolution", "variant") else "right")
     variants = [("joint", {})] + ([("robust only", {"segmentation": False})] if args.no_segmentation else [])
     for res in args.resolutions:
@@ -209,13 +253,15 @@ def main() -> None:
             r = run(frames, poses, args.repeats, config)
             cold_s = f"{(c['frame0_ms'] + c['frame1_ms']) / 1e3:.1f}" if c and name == "joint" else "-"
             table.add_row(f"{res} {RESOLUTIONS[res][1]}x{RESOLUTIONS[res][0]}", name, f"{r['median_ms']:.1f}",
-                          f"{r['p95_ms']:.1f}", f"{r['cpu_median_ms']:.1f}", f"{r['err_mm']:.2f}",
+                          f"{r['p95_ms']:.1f}", f"{r['cpu_median_ms']:.1f}", f"{r['all_cpu_median_ms']:.1f}",
+                          f"{r['err_mm']:.2f}",
                           f"{r['err_deg']:.3f}", f"{100 * r['moving']:.0f} %", f"{100 * r['static_moving']:.1f} %",
                           cold_s)
-    Console(width=160).print(table)
-    print("err: mean error of the frame-to-frame camera motion against ground truth; walker / others moving: share "
-          "of the walking box's / the other pixels in moving clusters; cold: a new process with an empty Numba "
-          "cache (compiling the kernels) runs the first two frames.")
+    Console(width=180).print(table)
+    print("cpu: CPU time of the calling thread; all cpu: of all threads; err: mean error of the frame-to-frame "
+          "camera motion against ground truth; walker / others moving: share of the walking box's / the other pixels "
+          "in moving clusters; cold: a new process with an empty Numba cache (compiling the kernels) runs the first "
+          "two frames.")
 
 
 if __name__ == "__main__":

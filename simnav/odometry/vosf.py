@@ -42,6 +42,11 @@ Conventions (see :mod:`simnav.geometry.se3`, :class:`simnav.sensors.readings.RGB
 Images wider than ``max_width_px`` are processed at a downsampled pyramid level (the paper works at QVGA); the
 extras are always at the input resolution.
 
+Runtime: every per-pixel stage is a Numba kernel of :mod:`~simnav.odometry.vosf_kernels` working on one packed
+array per pyramid level; loops over at least :data:`~simnav.odometry.vosf_kernels.PARALLEL_MIN` pixels (the finest
+QVGA level) run on Numba's threads (``NUMBA_NUM_THREADS``), and the results do not depend on the number of threads.
+``python scripts/bench_vosf_runtime.py [--threads N]`` times it.
+
 Where this implementation departs from the paper (and why):
 
 * Frame roles swapped (above), so outputs refer to the newest image. ``B^T`` of (6) and (14) is the previous
@@ -253,27 +258,23 @@ def make_vosf_config(config: VOSFConfig | None = None, **overrides) -> VOSFConfi
 
 @dataclass
 class _Level:
-    """One pyramid level of one frame (all images (h, w) float64; flat = row-major ravel)."""
+    """One pyramid level of one frame (images (h, w) float64; flat = row-major ravel)."""
 
     depth: np.ndarray
-    intensity: np.ndarray
     cam: np.ndarray  # fx, fy, cx, cy
     x: np.ndarray
     y: np.ndarray
-    gzu: np.ndarray
-    gzv: np.ndarray
-    giu: np.ndarray
-    giv: np.ndarray
-    gz_sq: np.ndarray  # flat |grad Z|^2
-    gi_sq: np.ndarray  # flat |grad I|^2
-    g1: np.ndarray  # (4, h * w) flat gradients dz/du, dz/dv, di/du, di/dv
+    pack: np.ndarray  # (h, w, kern.PACK) depth, intensity, gradients, B (moving probability of the cluster)
     valid_idx: np.ndarray  # flat indices of valid depths
     labels: np.ndarray | None = None  # (h, w) int32 cluster, -1 invalid
-    moving: np.ndarray | None = None  # (h, w) B: moving probability of the pixel's cluster
+    by_label: tuple[np.ndarray, np.ndarray] | None = None  # valid flat indices grouped by cluster, offsets
 
-    @property
-    def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return self.x.ravel(), self.y.ravel(), self.depth.ravel(), self.intensity.ravel()
+    def cluster_pixels(self, lab: int, k: int) -> np.ndarray:
+        """Flat indices (increasing) of the pixels of cluster ``lab`` of ``k``."""
+        if self.by_label is None:
+            self.by_label = kern.label_order(self.labels.ravel(), self.valid_idx, k)
+        order, offsets = self.by_label
+        return order[offsets[lab]:offsets[lab + 1]]
 
 
 @dataclass
@@ -285,8 +286,10 @@ class _Frame:
     has_intensity: bool
     full_depth: np.ndarray  # input resolution, sanitised
     full_cam: np.ndarray
+    mean_depth: float  # mean valid depth of the finest level, m
     centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     graph: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    zbar: np.ndarray = field(default_factory=lambda: np.zeros(0))  # mean depth per cluster (finest level), m
     segmented: bool = False
     edges: np.ndarray | None = None  # flat depth-edge mask of the finest level
 
@@ -320,10 +323,7 @@ def _points(depth: np.ndarray, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def _make_level(depth: np.ndarray, intensity: np.ndarray, cam: np.ndarray, eps_m: float) -> _Level:
     x, y = _points(depth, cam)
-    gzu, gzv, giu, giv = kern.gradients(depth, intensity, eps_m)
-    return _Level(depth, intensity, cam, x, y, gzu, gzv, giu, giv, (gzu * gzu + gzv * gzv).ravel(),
-                  (giu * giu + giv * giv).ravel(), np.stack([gzu.ravel(), gzv.ravel(), giu.ravel(), giv.ravel()]),
-                  np.flatnonzero(depth.ravel() > 0))
+    return _Level(depth, cam, x, y, kern.level_pack(depth, intensity, eps_m), np.flatnonzero(depth.ravel() > 0))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -415,7 +415,7 @@ class JointVOSF:
     def __init__(self, config: VOSFConfig | None = None, **overrides) -> None:
         self.config = make_vosf_config(config, **overrides)
         self._warned: set[str] = set()
-        self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._work: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -509,8 +509,9 @@ class JointVOSF:
     def _cluster_motions(self, cur: _Frame, prev: _Frame, which: np.ndarray, T0: np.ndarray, use_photo: bool,
                          T_clusters: np.ndarray) -> np.ndarray:
         """Solves (17) for the clusters flagged in ``which`` from ``T0``, writing ``T_clusters``; returns the flags."""
+        k = self.config.num_clusters
         for lab in np.flatnonzero(which):
-            groups = [np.flatnonzero(lv.labels.ravel() == lab) for lv in cur.levels]
+            groups = [lv.cluster_pixels(lab, k) for lv in cur.levels]
             sol = self._align(cur, prev, groups, None, kern.MODE_REFINE, self.config.cauchy_clusters, T0, use_photo,
                               False)
             if sol is not None and np.all(np.isfinite(sol.T)):
@@ -521,7 +522,7 @@ class JointVOSF:
                 T_R: np.ndarray) -> dict:
         """Stores the segmentation on the current frame and packs the estimate with its covariance."""
         for lv in cur.levels:
-            lv.moving = np.where(lv.labels >= 0, seg.b[np.maximum(lv.labels, 0)], 0.0)
+            kern.set_moving(lv.pack, lv.labels, seg.b)
         cur.segmented = self.config.segmentation
         cov, degenerate = self._covariance(sol, cur)
         return {"T": T, "cov": cov, "degenerate": degenerate, "pixels": sol.pixels if sol.level == 0 else 0,
@@ -544,15 +545,12 @@ class JointVOSF:
             if n < cfg.min_cluster_pixels:
                 continue
             ref, tgt = cur.levels[lv], prev.levels[lv]
-            x1, y1, z1, i1 = ref.flat
-            scale = scales[lv] if scales is not None else np.ones(n)
-            b2 = tgt.moving if use_b and tgt.moving is not None else np.zeros_like(tgt.depth)
-            r, J, ok, bw = self._buffers(n)
+            scale = scales[lv] if scales is not None else _NO_SCALE
+            r, J, ok = self._buffers(n)
             for _ in range(warps):
-                kern.linearize(idx, x1, y1, z1, i1, ref.gz_sq, ref.gi_sq, ref.g1, cfg.symmetric_gradients, scale, T,
-                               tgt.cam, tgt.depth, tgt.intensity, tgt.gzu, tgt.gzv, tgt.giu, tgt.giv, b2, use_photo,
-                               cfg.warp_gate_m, mode, cfg.photometric_weight, cfg.preweight_kz, cfg.preweight_ki, r,
-                               J, ok, bw)
+                kern.linearize(idx, scale, ref.x.ravel(), ref.y.ravel(), ref.pack, cfg.symmetric_gradients, T, tgt.cam,
+                               tgt.pack, use_b, use_photo, cfg.warp_gate_m, mode, cfg.photometric_weight,
+                               cfg.preweight_kz, cfg.preweight_ki, r, J, ok)
                 delta, H, s2, m = kern.irls_cauchy(r, J, ok, rows, c_factor, cfg.irls_max_iterations,
                                                    cfg.irls_chi2_ratio, cfg.irls_delta_tolerance)
                 if m == 0 or not np.all(np.isfinite(delta)):
@@ -567,53 +565,33 @@ class JointVOSF:
         """Per-cluster robust residuals (7)–(8) at the finest level after warping with ``T``, then (9)–(22)."""
         cfg = self.config
         ref, tgt = cur.levels[0], prev.levels[0]
-        idx = ref.valid_idx
-        n, k = len(idx), cfg.num_clusters
-        x1, y1, z1, i1 = ref.flat
-        r, J, ok, bw = self._buffers(n)
-        b2 = tgt.moving if use_b and tgt.moving is not None else np.zeros_like(tgt.depth)
-        kern.linearize(idx, x1, y1, z1, i1, ref.gz_sq, ref.gi_sq, ref.g1, False, np.ones(n), T, tgt.cam, tgt.depth,
-                       tgt.intensity, tgt.gzu, tgt.gzv, tgt.giu, tgt.giv, b2, use_photo, cfg.warp_gate_m,
-                       kern.MODE_RAW, cfg.photometric_weight, cfg.preweight_kz, cfg.preweight_ki, r, J, ok, bw)
-        lab = ref.labels.ravel()[idx]
-        depth = z1[idx]
-        count = np.bincount(lab, minlength=k).astype(float)
-        zbar = np.where(count > 0, np.bincount(lab, depth, minlength=k) / np.maximum(count, 1), np.nan)
-        # Robust mean residual (7): occluded (8) and depth-edge pixels left out, geometric residual capped.
         if cur.edges is None:
             cur.edges = kern.depth_edges(ref.depth, cfg.edge_threshold_m).ravel()
-        edges = cur.edges[idx]
-        use = ok & (r[:, 0] >= -cfg.occlusion_threshold_m) & ~edges
-        value = (cfg.photometric_weight * np.abs(r[:, 1])
-                 + np.minimum(np.abs(r[:, 0]), cfg.occlusion_threshold_m) / np.nan_to_num(zbar, nan=1.0)[lab])
-        n_use = np.bincount(lab[use], minlength=k)
+        # Robust mean residual (7) per cluster: occluded (8) and depth-edge pixels left out, geometric one capped.
+        sums = kern.cluster_residuals(ref.valid_idx, ref.labels.ravel(), cur.edges, np.nan_to_num(cur.zbar, nan=1.0),
+                                      ref.x.ravel(), ref.y.ravel(), ref.pack, T, tgt.cam, tgt.pack, use_b, use_photo,
+                                      cfg.warp_gate_m, cfg.photometric_weight, cfg.occlusion_threshold_m)
+        n_use, total, n_ok, b_sum = sums.T
         with np.errstate(invalid="ignore", divide="ignore"):
-            delta = np.where(n_use >= cfg.min_cluster_pixels, np.bincount(lab[use], value[use], minlength=k) / n_use,
-                             np.nan)
-            b_prev = None
-            if use_b:
-                n_ok = np.bincount(lab[ok], minlength=k)
-                b_prev = np.where(n_ok > 0, np.bincount(lab[ok], bw[ok], minlength=k) / n_ok, np.nan)
+            delta = np.where(n_use >= cfg.min_cluster_pixels, total / n_use, np.nan)
+            b_prev = np.where(n_ok > 0, b_sum / n_ok, np.nan) if use_b else None
         motion = float(np.linalg.norm(se3.log(T)))
-        return segment_background(delta, zbar, cur.graph, b_prev, motion, float(depth.mean()), cfg)
+        return segment_background(delta, cur.zbar, cur.graph, b_prev, motion, cur.mean_depth, cfg)
 
     def _background_groups(self, cur: _Frame, b: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Pixels of the static and uncertain clusters per level, each weighted by ``sqrt(1 - b)``."""
-        background = b <= self.config.moving_above
         groups, scales = [], []
         for lv in cur.levels:
-            labels = lv.labels.ravel()
-            idx = lv.valid_idx[background[labels[lv.valid_idx]]]
+            idx, scale = kern.background_pixels(lv.labels.ravel(), lv.valid_idx, b, self.config.moving_above)
             groups.append(idx)
-            scales.append(np.sqrt(np.clip(1.0 - b[labels[idx]], 0.0, 1.0)))
+            scales.append(scale)
         return groups, scales
 
     def _covariance(self, sol: _Solve, cur: _Frame) -> tuple[np.ndarray, bool]:
         """Covariance of ``log(T_prev_curr)`` (right perturbation, current optical frame) and degeneracy flag."""
         cfg = self.config
         H = 0.5 * (sol.H + sol.H.T)
-        depth = cur.levels[0].depth
-        z = float(depth[depth > 0].mean()) if np.any(depth > 0) else 1.0
+        z = cur.mean_depth
         S = np.diag([1.0, 1.0, 1.0, 1.0 / z, 1.0 / z, 1.0 / z])  # rotations as displacements at the mean depth
         evals, evecs = np.linalg.eigh(S @ H @ S)
         weak = ~(evals > cfg.degeneracy_threshold * max(evals[-1], 1e-300))
@@ -657,7 +635,8 @@ class JointVOSF:
             self._warn_once("few_pixels", "Joint-VO-SF: too few valid depths in a frame; motion predicted")
             return None
         levels = [_make_level(d, i, c, cfg.gradient_eps_m) for d, i, c in raw]
-        cur = _Frame(float(frame.stamp_s), levels, has_intensity, full_depth, full_cam)
+        cur = _Frame(float(frame.stamp_s), levels, has_intensity, full_depth, full_cam,
+                     float(depth.ravel()[levels[0].valid_idx].mean()))
         self._cluster(cur)
         return cur
 
@@ -679,12 +658,19 @@ class JointVOSF:
         idx = lv.valid_idx
         pts = np.stack([lv.x.ravel()[idx], lv.y.ravel()[idx], lv.depth.ravel()[idx]], axis=1)
         init = _seed_centres(lv, pts, cfg.cluster_grid_cols, cfg.cluster_grid_rows)
-        centres, _ = kern.kmeans(pts, init, cfg.kmeans_max_iterations, cfg.kmeans_tolerance_m)
+        centres, labels = kern.kmeans(pts, init, cfg.kmeans_max_iterations, cfg.kmeans_tolerance_m)
+        lv.labels = np.full(lv.depth.shape, -1, dtype=np.int32)
+        lv.labels.ravel()[idx] = labels
         for level in cur.levels:
-            level.labels = kern.assign_labels(level.x, level.y, level.depth, centres)
+            if level is not lv:
+                level.labels = kern.assign_labels(level.x, level.y, level.depth, centres)
         cur.centres = centres
         cur.graph = kern.connectivity(lv.x, lv.y, lv.depth, lv.labels, cfg.num_clusters, cfg.connectivity_gap_m,
                                       cfg.connectivity_gap_px, float(lv.cam[0]))
+        # Mean depth of every cluster at the finest level (Zbar of (7) and (15)).
+        lv0 = cur.levels[0]
+        count, total = kern.cluster_depths(lv0.labels.ravel(), lv0.valid_idx, lv0.depth.ravel(), cfg.num_clusters)
+        cur.zbar = np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
     # -- outputs -------------------------------------------------------------------------------------------------
 
@@ -727,13 +713,13 @@ class JointVOSF:
         scale = dt / self._dt_last if dt > 0 and self._dt_last > 0 else 1.0
         return se3.exp(self._xi_last * scale)
 
-    def _buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Views of length n of the reused outputs of :func:`~simnav.odometry.vosf_kernels.linearize`
-        (residuals, Jacobians, ok flags, warped B^T): fresh multi-megabyte arrays per call cost page faults."""
+        (residuals, Jacobians, ok flags): fresh multi-megabyte arrays per call cost page faults."""
         if self._work is None or len(self._work[2]) < n:
-            self._work = (np.empty((n, 2)), np.empty((n, 2, 6)), np.empty(n, dtype=np.bool_), np.empty(n))
-        r, J, ok, bw = self._work
-        return r[:n], J[:n], ok[:n], bw[:n]
+            self._work = (np.empty(2 * n), np.empty(12 * n), np.empty(n, dtype=np.bool_))
+        r, J, ok = self._work
+        return r[:2 * n].reshape(2, n), J[:12 * n].reshape(2, 6, n), ok[:n]
 
     def _warn_once(self, key: str, message: str) -> None:
         if key not in self._warned:
@@ -745,18 +731,17 @@ def _seed_centres(lv: _Level, pts: np.ndarray, cols: int, rows: int) -> np.ndarr
     """(cols * rows, 3) initial K-means centres: the centre pixel of each image-grid cell back-projected at the
     cell's median valid depth; cells without depth take the valid point farthest from the centres so far."""
     h, w = lv.depth.shape
-    ue = np.linspace(0, w, cols + 1).astype(int)
-    ve = np.linspace(0, h, rows + 1).astype(int)
+    ue = np.linspace(0, w, cols + 1).astype(np.int64)
+    ve = np.linspace(0, h, rows + 1).astype(np.int64)
     fx, fy, cx, cy = lv.cam
+    medians = kern.cell_medians(lv.depth, ue, ve)
     centres, missing = [], 0
     for r in range(rows):
         for c in range(cols):
-            cell = lv.depth[ve[r]:ve[r + 1], ue[c]:ue[c + 1]]
-            valid = cell[cell > 0]
-            if valid.size == 0:
+            z = float(medians[r * cols + c])
+            if math.isnan(z):
                 missing += 1
                 continue
-            z = float(np.median(valid))
             u, v = 0.5 * (ue[c] + ue[c + 1] - 1), 0.5 * (ve[r] + ve[r + 1] - 1)
             centres.append(((u - cx) / fx * z, (v - cy) / fy * z, z))
     out = np.array(centres, dtype=np.float64).reshape(-1, 3)
@@ -767,6 +752,9 @@ def _seed_centres(lv: _Level, pts: np.ndarray, cols: int, rows: int) -> np.ndarr
         d = np.min(((pts[:, None, :] - out[None, :, :]) ** 2).sum(axis=2), axis=1)
         out = np.vstack([out, pts[int(np.argmax(d))]])
     return np.ascontiguousarray(out)
+
+
+_NO_SCALE = np.zeros(0)  # no per-pixel factor in kern.linearize
 
 
 def _mount(T: np.ndarray) -> np.ndarray:
