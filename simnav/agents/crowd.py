@@ -13,20 +13,29 @@ sight to a new goal.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 
 import numpy as np
-from numba import njit
 
+from simnav.agents.kernels import (
+    crowd_advance,
+    crowd_plan_events,
+    crowd_prepare,
+    crowd_react,
+    crowd_walk,
+    grid_lists,
+    grid_pairs,
+)
 from simnav.agents.roadmap import RoadmapGraph
 from simnav.agents.social_force import (
+    NEAR_SLACK_M,
     Segments,
     SocialForceParams,
     all_pairs,
-    integrate,
-    resolve_overlaps_pairs,
-    social_force_pairs,
+    circle_arrays,
+    kernel_params,
     wall_reach_m,
 )
 
@@ -43,6 +52,7 @@ YAW_TIME_CONSTANT_S = 0.25
 MAX_YAW_RATE_RAD_S = 4.0
 MOVING_SPEED_M_S = 0.1
 PROJECTION_SWEEPS = 40
+STEP_ALLOWANCE_M = 0.3  # the largest move of a step for which the near grid lists the walls to project out of
 BLOCKED_SPEED_M_S = 0.2
 BLOCKING_DISTANCE_M = 1.0
 BLOCKING_HALF_ANGLE_RAD = math.radians(60.0)
@@ -52,7 +62,11 @@ YIELD_DURATION_S = (1.0, 2.5)
 YIELD_SPEED_FACTOR = 0.5
 ROBOT_PASSING_GAP_M = 0.3
 OCCUPIED_MARGIN_M = 0.1  # a roadmap node closer than this to a robot's rim is taken by the robot
-_NEAR_SLACK_M = 1.0  # the reach, beyond the radius and the move, that the projection keeps around a centre
+# the rules as the kernels take them (simnav.agents.kernels.crowd_react)
+_TURNING = (YAW_TIME_CONSTANT_S, MAX_YAW_RATE_RAD_S, MOVING_SPEED_M_S)
+_BLOCKING = (BLOCKING_DISTANCE_M, math.cos(BLOCKING_HALF_ANGLE_RAD), BLOCKED_SPEED_M_S, YIELD_AFTER_S,
+             FORCE_YIELD_AFTER_S)
+_STUCK = (STUCK_PROGRESS_M, STUCK_TIME_S)
 
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray:
@@ -81,58 +95,46 @@ class SegmentGrid:
         self._origin = ends.min(axis=0) - reach_m
         extent = ends.max(axis=0) + reach_m - self._origin
         self._shape = tuple(int(k) for k in np.maximum(np.ceil(extent / cell_m), 1).astype(int))
-        self._ptr, self._idx = self._build(segments, reach_m + cell_m * math.sqrt(0.5))
+        self._ptr, self._idx = grid_lists(self._origin, cell_m, *self._shape, segments.start, segments.delta,
+                                          segments.inv_len2, reach_m + cell_m * math.sqrt(0.5))
 
-    def _build(self, segments: Segments, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
-        nx, ny = self._shape
-        gx, gy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-        centers = self._origin + (np.stack([gx.ravel(), gy.ravel()], axis=1) + 0.5) * self._cell_m
-        m = len(segments)
-        chunk = max(1, 2_000_000 // m)
-        counts, lists = [], []
-        for lo in range(0, len(centers), chunk):
-            c = centers[lo : lo + chunk]
-            ped, seg = all_pairs(len(c), m)
-            _, d = segments.offsets(c, ped, seg)
-            near = (d <= reach_m).reshape(len(c), m)
-            counts.append(near.sum(axis=1))
-            lists.append(np.nonzero(near)[1])
-        ptr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
-        return ptr, np.concatenate(lists).astype(np.int64)
+    @property
+    def arrays(self) -> tuple[np.ndarray, float, int, int, np.ndarray, np.ndarray]:
+        """The grid as :func:`~simnav.agents.kernels.grid_pairs` takes it: (origin (2,) m, cell size m, nx, ny,
+        cell pointers, segment indices)."""
+        return self._origin, self._cell_m, self._shape[0], self._shape[1], self._ptr, self._idx
 
     def pairs(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Candidate (point index, segment index) pairs for (N, 2) points: two (P,) int arrays."""
-        n = len(points)
-        if self._shape == (0, 0) or n == 0:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
-        return _grid_pairs(pts, self._origin, self._cell_m, self._shape[0], self._shape[1], self._ptr, self._idx)
+        return grid_pairs(pts, *self.arrays)
 
 
-@njit(cache=True)
-def _grid_pairs(points: np.ndarray, origin: np.ndarray, cell_m: float, nx: int, ny: int, ptr: np.ndarray,
-                idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:meth:`SegmentGrid.pairs` on the grid's flat cell lists ``idx[ptr[c]:ptr[c + 1]]`` (cell c = ix·ny + iy)."""
-    n = points.shape[0]
-    cell = np.full(n, -1, dtype=np.int64)
-    total = 0
-    # each point's cell (-1 outside the grid), then its segments in cell-list order
-    for i in range(n):
-        ix = np.int64(math.floor((points[i, 0] - origin[0]) / cell_m))
-        iy = np.int64(math.floor((points[i, 1] - origin[1]) / cell_m))
-        if 0 <= ix < nx and 0 <= iy < ny:
-            cell[i] = ix * ny + iy
-            total += ptr[cell[i] + 1] - ptr[cell[i]]
-    ped = np.empty(total, dtype=np.int64)
-    seg = np.empty(total, dtype=np.int64)
-    k = 0
-    for i in range(n):
-        if cell[i] < 0:
-            continue
-        for j in range(ptr[cell[i]], ptr[cell[i] + 1]):
-            ped[k], seg[k] = i, idx[j]
-            k += 1
-    return ped, seg
+def grid_lists_reference(segments: Segments, origin: np.ndarray, cell_m: float, shape: tuple[int, int],
+                         reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~simnav.agents.kernels.grid_lists` written with numpy array operations (the reference of the kernel)."""
+    nx, ny = shape
+    gx, gy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    centers = origin + (np.stack([gx.ravel(), gy.ravel()], axis=1) + 0.5) * cell_m
+    m = len(segments)
+    chunk = max(1, 2_000_000 // m)
+    counts, lists = [], []
+    for lo in range(0, len(centers), chunk):
+        c = centers[lo : lo + chunk]
+        ped, seg = all_pairs(len(c), m)
+        _, d = segments.offsets(c, ped, seg)
+        near = (d <= reach_m).reshape(len(c), m)
+        counts.append(near.sum(axis=1))
+        lists.append(np.nonzero(near)[1])
+    ptr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
+    return ptr, np.concatenate(lists).astype(np.int64)
+
+
+@functools.lru_cache(maxsize=16)
+def _shared_grid(walls: bytes, reach_m: float, cell_m: float) -> SegmentGrid:
+    """The :class:`SegmentGrid` of the (M, 2, 2) float64 wall segments ``walls`` (as bytes), built once for all
+    the crowds in those walls (an env makes one per episode)."""
+    return SegmentGrid(Segments(np.frombuffer(walls).reshape(-1, 2, 2)), reach_m, cell_m)
 
 
 class Crowd:
@@ -168,10 +170,10 @@ class Crowd:
         self._rng = rng
         self._wall_xy = np.asarray(walls_xy, dtype=float).reshape(-1, 2, 2)
         self._walls = Segments(self._wall_xy)
-        self._grid_reach_m = max(wall_reach_m(params), params.radius_m + 2.0 * _NEAR_SLACK_M)
-        self._grid = SegmentGrid(self._walls, self._grid_reach_m)
-        # candidates found around the old centres cover the projection around the new ones up to this move
-        self._max_move_m = 0.5 * (self._grid_reach_m - params.radius_m - _NEAR_SLACK_M)
+        self._kernel_params = kernel_params(params)
+        self._steer = params.wall_look_ahead_m > 0.0
+        self._limits = (GOAL_REACHED_M, WAYPOINT_REACHED_M, params.radius_m, OCCUPIED_MARGIN_M)
+        self._init_grids()
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
         self._pos, start_nodes = self._spawn(int(count), keep)
         self._vel = np.zeros_like(self._pos)
@@ -255,57 +257,75 @@ class Crowd:
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
         self._time_s += dt_s
-        self._update_plans(dt_s, circles)
-        dirs, drive_speeds = self._desired()
-        segs, ped_idx, seg_idx = self._wall_pairs(self._pos, dynamic_segments)
-        acc = social_force_pairs(
-            self._pos, self._vel, dirs, drive_speeds, segs, ped_idx, seg_idx, circles, circle_velocities,
-            self._params,
-        )
-        moved, _ = integrate(self._pos, self._vel, acc, self._speeds, dt_s, self._params)
-        if len(moved) and np.max(np.linalg.norm(moved - self._pos, axis=1)) > self._max_move_m:
-            segs, ped_idx, seg_idx = self._wall_pairs(moved, dynamic_segments)  # candidates from here
-        resolved = resolve_overlaps_pairs(
-            moved, self.radius_m, segs, ped_idx, seg_idx, circles, PROJECTION_SWEEPS,
-            previous_xy=self._pos, check_crossing=seg_idx < len(self._walls),
-        )
-        self._vel = (resolved - self._pos) / dt_s
-        self._pos = resolved
-        self._update_yaws(dt_s)
-        self._handle_blocking(dt_s, circles)
-        self._handle_stuck(segs)
-
-    def _wall_pairs(
-        self, points: np.ndarray, dynamic_segments: np.ndarray | None
-    ) -> tuple[Segments, np.ndarray, np.ndarray]:
-        ped_idx, seg_idx = self._grid.pairs(points)
-        if dynamic_segments is None or len(dynamic_segments) == 0:
-            return self._walls, ped_idx, seg_idx
-        dyn = np.asarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
-        segs = self._walls.extended(dyn)
-        dyn_ped, dyn_seg = all_pairs(len(points), len(dyn))
-        return segs, np.concatenate([ped_idx, dyn_ped]), np.concatenate([seg_idx, dyn_seg + len(self._walls)])
-
-    def _desired(self) -> tuple[np.ndarray, np.ndarray]:
-        """Unit directions toward the current waypoints (N, 2) and the speeds to drive at (N,)."""
-        speeds = _desired_update(self._dirs, self._target, self._pos, self._yield_s, self._yield_dir, self._speeds,
-                                 self._arrived, YIELD_SPEED_FACTOR)
-        return self._dirs, speeds
-
-    def _update_yaws(self, dt_s: float) -> None:
-        speed = np.linalg.norm(self._vel, axis=1)
+        circ, circ_vel = circle_arrays(circles, circle_velocities)
+        self._update_plans(dt_s, circ)
+        dyn = self._moving_segments(dynamic_segments)
+        self._move(dt_s, dyn, circ, circ_vel, circles is not None)
+        # headings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
         heading = np.arctan2(self._vel[:, 1], self._vel[:, 0])
-        error = wrap_angle(heading - self._yaw)
-        gain = min(1.0, dt_s / YAW_TIME_CONSTANT_S) / dt_s
-        rate = np.clip(error * gain, -MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S)
-        rate[speed <= MOVING_SPEED_M_S] = 0.0
-        self._yaw = wrap_angle(self._yaw + rate * dt_s)
-        self._yaw_rate = rate
+        self._yaw, self._yaw_rate, events = crowd_react(
+            self._pos, self._vel, heading, self._yaw, self._dirs, self._arrived, self._yield_s, self._blocked_s,
+            self._priority, circ, self.radius_m, self._anchor_xy, self._anchor_t, self._time_s, dt_s, _TURNING,
+            _BLOCKING, _STUCK,
+        )
+        if len(events):
+            self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
+
+    def _unblock(self, events: np.ndarray, circles: np.ndarray, walls: Segments) -> None:
+        """Those blocked step back, those stuck head elsewhere: (E, 2) events [pedestrian, blocker, or −1 for
+        stuck] of :func:`~simnav.agents.kernels.crowd_react`, with the (C, 3) ``circles`` and this step's
+        ``walls``."""
+        for k, blocker in events:
+            if blocker >= 0:
+                self._step_back(int(k), int(blocker), circles)
+            else:
+                self._replan_stuck(int(k), walls)
+
+    def _moving_segments(self, dynamic_segments: np.ndarray | None) -> np.ndarray:
+        """The (D, 2, 2) moving segments (metres), contiguous, with room for them after the walls (kept while D
+        stays; :func:`~simnav.agents.kernels.crowd_prepare` fills it)."""
+        if dynamic_segments is None:
+            return self._no_segments
+        dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
+        if len(dyn) and len(self._extended) != len(self._walls) + len(dyn):
+            self._extended = self._walls.extended(dyn)
+            self._extended_args = (*self._extended.arrays, len(self._walls))
+        return dyn
+
+    def _move(self, dt_s: float, dyn: np.ndarray, circ: np.ndarray, circ_vel: np.ndarray, has_circles: bool) -> None:
+        """Social forces, the semi-implicit Euler step and the non-overlap projection: new positions and velocities.
+
+        ``dyn``: (D, 2, 2) moving segments; ``has_circles`` False: ``circ`` is (0, 3).
+        """
+        walls = self._walls_args if len(dyn) == 0 else self._extended_args
+        drive, ped, seg, offsets, forced, args, ell = crowd_prepare(
+            self._pos, self._vel, self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds,
+            self._arrived, YIELD_SPEED_FACTOR, self._near_cells, walls, dyn, circ, circ_vel, self._kernel_params,
+        )
+        self._pos, self._vel = crowd_walk(
+            self._pos, self._vel, self._dirs, drive, self._speeds, walls, (ped, seg), offsets, forced, circ, circ_vel,
+            has_circles, self._kernel_params, self._steer, np.exp(args), ell, dt_s, self._params.max_speed_factor,
+            self.radius_m, PROJECTION_SWEEPS, NEAR_SLACK_M, self._fallback,
+        )
+
+    def _init_grids(self) -> None:
+        """The candidate walls: a near grid for the forces and the projection after moves up to
+        STEP_ALLOWANCE_M; beyond, a grid whose candidates around the old centres cover the projection around the
+        new ones for moves up to ``max_move_m`` (larger moves: candidates around the new centres)."""
+        params, walls = self._params, self._wall_xy.tobytes()
+        reach_m = max(wall_reach_m(params), params.radius_m + 2.0 * NEAR_SLACK_M)
+        max_move_m = 0.5 * (reach_m - params.radius_m - NEAR_SLACK_M)
+        near_reach_m = max(wall_reach_m(params), params.radius_m + NEAR_SLACK_M + 2.0 * STEP_ALLOWANCE_M)
+        self._near_cells = _shared_grid(walls, near_reach_m, 0.5).arrays
+        self._fallback = (near_reach_m, max_move_m, _shared_grid(walls, reach_m, 1.0).arrays)
+        self._walls_args = (*self._walls.arrays, len(self._walls))
+        self._extended, self._extended_args = self._walls, self._walls_args  # walls + moving segments (D > 0)
+        self._no_segments = np.zeros((0, 2, 2))
 
     def _init_plans(self, start_nodes: list[int]) -> None:
         n = len(self._pos)
         self._goals = np.zeros(n, dtype=np.int64)
-        self._paths: list[np.ndarray] = [np.zeros((1, 2))] * n
+        self._path_xy = np.zeros((n, self._roadmap.node_count, 2))  # path k: the first _last_wp[k] + 1 nodes
         self._wp = np.zeros(n, dtype=np.int64)
         self._last_wp = np.zeros(n, dtype=np.int64)
         self._target = self._pos.copy()
@@ -317,8 +337,8 @@ class Crowd:
 
     def _initial_yaws(self) -> np.ndarray:
         yaws = np.empty(len(self._pos))
-        for k, path in enumerate(self._paths):
-            ahead = path[min(1, len(path) - 1)] - self._pos[k]
+        for k in range(len(self._pos)):
+            ahead = self._path_xy[k, min(1, self._last_wp[k])] - self._pos[k]
             if np.hypot(ahead[0], ahead[1]) > 1e-6:
                 yaws[k] = math.atan2(ahead[1], ahead[0])
             else:
@@ -337,93 +357,74 @@ class Crowd:
         if not path:
             goal, path = start_node, [start_node]
         self._goals[k] = goal
-        self._paths[k] = self._roadmap.nodes_xy[np.asarray(path)]
+        self._path_xy[k, : len(path)] = self._roadmap.nodes_xy[np.asarray(path)]
         self._wp[k] = 0
         self._last_wp[k] = len(path) - 1
         self._arrived[k] = False
         self._set_target(k)
 
     def _set_target(self, k: int) -> None:
-        self._target[k] = self._paths[k][self._wp[k]]
+        self._target[k] = self._path_xy[k, self._wp[k]]
 
-    def _update_plans(self, dt_s: float, circles: np.ndarray | None = None) -> None:
-        self._pause_s[self._arrived] -= dt_s
-        for k in np.nonzero(self._arrived & (self._pause_s <= 0.0))[0]:
-            self._plan(int(k), int(self._goals[k]))
-        last = self._wp == self._last_wp
-        dist = np.linalg.norm(self._target - self._pos, axis=1)
-        reach = np.where(last, GOAL_REACHED_M, WAYPOINT_REACHED_M) + self._occupied_by_m(circles)
-        reached = ~self._arrived & (dist < reach)
-        for k in np.nonzero(reached)[0]:
-            self._advance(int(k))
+    def _update_plans(self, dt_s: float, circles: np.ndarray) -> None:
+        """Pauses run down and new goals; waypoints reached, counting a robot (in (C, 3) ``circles``) standing on
+        the target as there."""
+        plans = (self._pos, self._target, self._path_xy, self._wp, self._last_wp)
+        due, events = crowd_plan_events(self._pause_s, self._arrived, dt_s, plans, circles, self._limits)
+        if len(due):
+            for k in due:
+                self._plan(int(k), int(self._goals[k]))
+            events = crowd_advance(self._arrived, plans, circles, self._limits)
+        if len(events):
+            self._settle(events)
 
-    def _occupied_by_m(self, circles: np.ndarray | None) -> np.ndarray:
-        """(N,) how much farther from its target a pedestrian counts as there: the radius of a round obstacle
-        (a robot) standing on the target plus the pedestrian's, or 0. Nobody walks onto someone else's spot, so
-        without this, people whose next roadmap node a robot stands on circle it for ever."""
-        if circles is None or len(circles) == 0 or len(self._pos) == 0:
-            return np.zeros(len(self._pos))
-        c = np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
-        return _occupied_extra(self._target, c, self.radius_m, OCCUPIED_MARGIN_M)
+    def _settle(self, events: np.ndarray) -> None:
+        """Pauses for those who arrived, and the waypoints the kernel left to numpy's norm: (E, 2) events
+        [pedestrian, kind] of :func:`~simnav.agents.kernels.crowd_advance`."""
+        for k, unsettled in events:
+            if unsettled:
+                last = self._wp[k] == self._last_wp[k]
+                if np.linalg.norm(self._target[k] - self._pos[k]) < (GOAL_REACHED_M if last else WAYPOINT_REACHED_M):
+                    self._advance(int(k))
+            else:
+                self._pause_s[k] = self._rng.uniform(0.0, MAX_PAUSE_S)
 
     def _advance(self, k: int) -> None:
-        path = self._paths[k]
+        """Pedestrian k takes the next waypoints until one is out of reach, or arrives (see
+        :func:`~simnav.agents.kernels.crowd_advance`, which measures the distances in the common case)."""
         while True:
-            if self._wp[k] == len(path) - 1:
+            if self._wp[k] == self._last_wp[k]:
                 self._arrived[k] = True
                 self._pause_s[k] = self._rng.uniform(0.0, MAX_PAUSE_S)
                 return
             self._wp[k] += 1
             self._set_target(k)
-            last = self._wp[k] == len(path) - 1
+            last = self._wp[k] == self._last_wp[k]
             reach_m = GOAL_REACHED_M if last else WAYPOINT_REACHED_M
             if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
                 return
 
-    def _handle_blocking(self, dt_s: float, circles: np.ndarray | None = None) -> None:
-        """Break face-offs (e.g. in a doorway, or with a robot): after a while the pedestrian steps aside.
-
-        A pedestrian is blocked while it barely moves and someone stands within BLOCKING_DISTANCE_M ahead
-        (±60° of its desired direction; for a round obstacle such as a robot, the distance between the rims plus
-        twice the pedestrian radius). Blocked by a pedestrian for YIELD_AFTER_S, it steps back from the closest one
-        ahead for 1–2.5 s if that one has a higher priority (drawn at spawn); blocked for FORCE_YIELD_AFTER_S, it
-        steps back anyway. Robots outrank everyone; from one, a pedestrian steps aside towards a spot
-        ROBOT_PASSING_GAP_M beside it, on the right of the way it wanted to go, and walks on past from there.
-        """
-        self._yield_s = np.maximum(self._yield_s - dt_s, 0.0)
+    def _step_back(self, k: int, blocker: int, circles: np.ndarray) -> None:
+        """Pedestrian k, blocked by ``blocker`` (a pedestrian, or N + the index of a round obstacle in (C, 3)
+        ``circles``), yields for 1–2.5 s: back from a pedestrian; from a robot, towards a
+        spot ROBOT_PASSING_GAP_M beside it, on the right of the way it wanted to go."""
         n = len(self._pos)
-        c = np.zeros((0, 3)) if circles is None else np.asarray(circles, dtype=float).reshape(-1, 3)
-        if n == 0 or n + len(c) < 2:
-            return
-        others = np.concatenate([self._pos, c[:, :2]])
-        reach = np.concatenate([np.full(n, BLOCKING_DISTANCE_M), BLOCKING_DISTANCE_M + c[:, 2] - self.radius_m])
-        in_way, blocker = _closest_in_way(self._pos, self._dirs, others, reach, math.cos(BLOCKING_HALF_ANGLE_RAD))
-        slow = np.linalg.norm(self._vel, axis=1) < BLOCKED_SPEED_M_S
-        blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & in_way
-        self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
-        priority = np.concatenate([self._priority, np.full(len(c), np.inf)])
-        outranked = self._priority < priority[blocker]
-        steps_back = (self._blocked_s >= YIELD_AFTER_S) & outranked | (self._blocked_s >= FORCE_YIELD_AFTER_S)
-        for k in np.nonzero(steps_back)[0]:
-            away = -(others[blocker[k]] - self._pos[k])
-            if blocker[k] >= n:  # a robot: head for a spot beside it, on the right of the way it wanted to go
-                right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
-                beside = c[blocker[k] - n, :2] + (c[blocker[k] - n, 2] + self.radius_m + ROBOT_PASSING_GAP_M) * right
-                away = beside - self._pos[k]
-            self._yield_dir[k] = away / max(float(np.linalg.norm(away)), 1e-9)
-            self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
-            self._blocked_s[k] = 0.0
+        if blocker < n:
+            away = -(self._pos[blocker] - self._pos[k])
+        else:
+            right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
+            beside = circles[blocker - n, :2] + (circles[blocker - n, 2] + self.radius_m + ROBOT_PASSING_GAP_M) * right
+            away = beside - self._pos[k]
+        self._yield_dir[k] = away / max(float(np.linalg.norm(away)), 1e-9)
+        self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
+        self._blocked_s[k] = 0.0
 
-    def _handle_stuck(self, walls: Segments) -> None:
-        progressed = np.linalg.norm(self._pos - self._anchor_xy, axis=1) >= STUCK_PROGRESS_M
-        reset = progressed | self._arrived
-        self._anchor_xy[reset] = self._pos[reset]
-        self._anchor_t[reset] = self._time_s
-        for k in np.nonzero(self._time_s - self._anchor_t >= STUCK_TIME_S)[0]:
-            _LOG.debug("pedestrian %d stuck at %s, re-planning", k, self._pos[k])
-            self._plan(int(k), self._nearest_visible_node(self._pos[k], walls))
-            self._anchor_xy[k] = self._pos[k]
-            self._anchor_t[k] = self._time_s
+    def _replan_stuck(self, k: int, walls: Segments) -> None:
+        """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``)."""
+        _LOG.debug("pedestrian %d stuck at %s, re-planning", k, self._pos[k])
+        self._plan(k, self._nearest_visible_node(self._pos[k], walls))
+        self._anchor_xy[k] = self._pos[k]
+        self._anchor_t[k] = self._time_s
 
     def _nearest_visible_node(self, xy: np.ndarray, walls: Segments, candidates: int = 8) -> int:
         """The nearest roadmap node in line of sight of ``xy`` among the closest few, else the nearest one."""
@@ -481,73 +482,6 @@ class Crowd:
         if len(keep_out) and np.any(np.linalg.norm(keep_out[:, :2] - xy, axis=1) < keep_out[:, 2] + r):
             return False
         return True
-
-
-@njit(cache=True)
-def _desired_update(dirs: np.ndarray, target: np.ndarray, pos: np.ndarray, yield_s: np.ndarray,
-                    yield_dir: np.ndarray, speeds: np.ndarray, arrived: np.ndarray, yield_factor: float) -> np.ndarray:
-    """Point ``dirs`` (N, 2, in place) at the targets, or along ``yield_dir`` while yielding; (N,) drive speeds.
-
-    A pedestrian within 1 µm of its target keeps its direction; one yielding walks at ``yield_factor`` of its
-    speed, one that has arrived stands (0). Positions in metres, speeds in m/s.
-    """
-    n = pos.shape[0]
-    out = np.empty(n)
-    for i in range(n):
-        dx, dy = target[i, 0] - pos[i, 0], target[i, 1] - pos[i, 1]
-        dist = math.sqrt(dx * dx + dy * dy)
-        if dist > 1e-6:
-            dirs[i, 0], dirs[i, 1] = dx / dist, dy / dist
-        speed = speeds[i]
-        if yield_s[i] > 0.0:
-            dirs[i, 0], dirs[i, 1] = yield_dir[i, 0], yield_dir[i, 1]
-            speed = yield_factor * speeds[i]
-        out[i] = 0.0 if arrived[i] else speed
-    return out
-
-
-@njit(cache=True)
-def _occupied_extra(targets: np.ndarray, circles: np.ndarray, radius_m: float, margin_m: float) -> np.ndarray:
-    """(N,) the largest ``circle radius + radius_m`` over the circles (C, 3) whose rim comes within ``margin_m``
-    of the pedestrian's rim about its target (N, 2), else 0 (all metres)."""
-    n = targets.shape[0]
-    out = np.zeros(n)
-    for i in range(n):
-        best = -np.inf
-        for k in range(circles.shape[0]):
-            dx, dy = targets[i, 0] - circles[k, 0], targets[i, 1] - circles[k, 1]
-            gap = math.sqrt(dx * dx + dy * dy) - circles[k, 2] - radius_m
-            best = max(best, circles[k, 2] + radius_m if gap < margin_m else 0.0)
-        out[i] = best
-    return out
-
-
-@njit(cache=True)
-def _closest_in_way(pos: np.ndarray, dirs: np.ndarray, others: np.ndarray, reach: np.ndarray,
-                    cos_half_angle: float) -> tuple[np.ndarray, np.ndarray]:
-    """Who stands in each pedestrian's way: (N,) whether anyone does, and (N,) the index of the closest (else 0).
-
-    Args:
-        pos: (N, 2) pedestrian centres, metres. dirs: (N, 2) unit desired directions.
-        others: (K, 2) centres of the N pedestrians, then of the round obstacles, metres.
-        reach: (K,) how far ahead each of ``others`` counts as in the way, metres.
-        cos_half_angle: cosine of the half-angle of the cone ahead.
-    """
-    n, k_count = pos.shape[0], others.shape[0]
-    in_way = np.zeros(n, dtype=np.bool_)
-    blocker = np.zeros(n, dtype=np.int64)
-    for i in range(n):
-        best = np.inf
-        for k in range(k_count):
-            rx, ry = others[k, 0] - pos[i, 0], others[k, 1] - pos[i, 1]
-            dist = math.sqrt(rx * rx + ry * ry)
-            if k == i:
-                dist += 1e9
-            if rx * dirs[i, 0] + ry * dirs[i, 1] >= dist * cos_half_angle and dist < reach[k]:
-                in_way[i] = True
-                if dist < best:
-                    best, blocker[i] = dist, k
-    return in_way, blocker
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:

@@ -35,13 +35,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from simnav.agents.kernels import CONTACT_MARGIN_M as KERNEL_CONTACT_MARGIN_M
-from simnav.agents.kernels import exponents, integrate_kernel, resolve_overlaps_kernel, social_force_kernel
+from simnav.agents.kernels import (
+    exponents,
+    integrate_kernel,
+    resolve_overlaps_kernel,
+    social_force_kernel,
+    wall_far_m,
+    wall_offsets,
+)
 
 _EPS = 1e-9
 _NEGLIGIBLE_M_S2 = 1e-3  # wall forces weaker than this are skipped
 CONTACT_MARGIN_M = KERNEL_CONTACT_MARGIN_M
 """Clearance added by :func:`resolve_overlaps` beyond touching (bodies end up at least half of it apart)."""
-_NEAR_SLACK_M = 1.0  # a projection ignores walls further than radius + this + the move from previous_xy
+NEAR_SLACK_M = 1.0
+"""A projection ignores walls further than the radius + this + the move from ``previous_xy``, metres."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +116,11 @@ class Segments:
 
     def __len__(self) -> int:
         return len(self.start)
+
+    @property
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(start (M, 2), delta (M, 2), 1/|delta|² (M,)), as the kernels of :mod:`simnav.agents.kernels` take them."""
+        return self.start, self.delta, self.inv_len2
 
     def extended(self, segments: np.ndarray) -> Segments:
         """These segments followed by (D, 2, 2) ``segments``, metres (as :class:`Segments` of both together)."""
@@ -413,21 +426,28 @@ def social_force_pairs(
 ) -> np.ndarray:
     """:func:`social_force` with prepared walls and candidate (pedestrian, segment) pairs (a Numba kernel)."""
     pos = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
-    circ = np.zeros((0, 3)) if circles is None else np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
-    if circle_velocities is None:
-        circ_vel = np.zeros((len(circ), 2))
-    else:
-        circ_vel = _broadcast(circle_velocities, (len(circ), 2))
+    circ, circ_vel = circle_arrays(circles, circle_velocities)
     n = len(pos)
     vel, dirs, speeds = (_broadcast(a, shape) for a, shape in
                          ((velocities, (n, 2)), (desired_dirs, (n, 2)), (desired_speeds, (n,))))
     ped, seg, p = _as_index(ped_idx), _as_index(seg_idx), kernel_params(params)
-    walls = (segments.start, segments.delta, segments.inv_len2)
-    exps = np.exp(exponents(pos, vel, *walls, ped, seg, circ, circ_vel, p))
+    offsets = wall_offsets(pos, segments.start, segments.delta, segments.inv_len2, ped, seg, wall_far_m(p))
+    args, ell = exponents(pos, vel, offsets, circ, circ_vel, p)
     return social_force_kernel(
-        pos, vel, dirs, speeds, *walls, ped, seg, circ, circ_vel, circles is not None, p,
-        params.wall_look_ahead_m > 0.0, exps,
+        pos, vel, dirs, speeds, segments.start, segments.delta, ped, seg, offsets, circ, circ_vel,
+        circles is not None, p, params.wall_look_ahead_m > 0.0, np.exp(args), ell,
     )
+
+
+def circle_arrays(
+    circles: np.ndarray | None, circle_velocities: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Round obstacles as the kernels take them: contiguous (C, 3) ``[x, y, radius]`` (metres; (0, 3) for None)
+    and (C, 2) velocities (m/s; zeros for None)."""
+    circ = np.zeros((0, 3)) if circles is None else np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
+    if circle_velocities is None:
+        return circ, np.zeros((len(circ), 2))
+    return circ, _broadcast(circle_velocities, (len(circ), 2))
 
 
 @functools.lru_cache(maxsize=16)
@@ -537,7 +557,7 @@ def resolve_overlaps(
     move = 0.0
     if previous_xy is not None and len(positions):
         move = float(np.max(np.linalg.norm(positions - np.asarray(previous_xy, dtype=float), axis=1)))
-    ped_idx, seg_idx = box_pairs(positions, segs, radius_m + _NEAR_SLACK_M + move)
+    ped_idx, seg_idx = box_pairs(positions, segs, radius_m + NEAR_SLACK_M + move)
     crossing = None if previous_xy is None else np.ones(len(ped_idx), dtype=bool)
     return resolve_overlaps_pairs(
         positions, radius_m, segs, ped_idx, seg_idx, circles, iterations, previous_xy, crossing
@@ -561,14 +581,14 @@ def resolve_overlaps_pairs(
     (static walls); moving segments (door leaves) are left to the push-out.
     """
     pos = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
-    circ = np.zeros((0, 3)) if circles is None else np.ascontiguousarray(circles, dtype=float).reshape(-1, 3)
+    circ = circle_arrays(circles, None)[0]
     has_prev = previous_xy is not None
     prev = np.ascontiguousarray(previous_xy, dtype=float).reshape(-1, 2) if has_prev else pos
     guard = has_prev and check_crossing is not None
     check = np.ascontiguousarray(check_crossing, dtype=bool).reshape(-1) if guard else np.zeros(len(ped_idx), bool)
     return resolve_overlaps_kernel(
         pos, float(radius_m), segments.start, segments.delta, segments.inv_len2, _as_index(ped_idx),
-        _as_index(seg_idx), circ, int(iterations), prev, has_prev, check, guard, _NEAR_SLACK_M,
+        _as_index(seg_idx), circ, int(iterations), prev, has_prev, check, guard, NEAR_SLACK_M,
     )
 
 
@@ -592,7 +612,7 @@ def resolve_overlaps_pairs_reference(
     prev = None if previous_xy is None else np.asarray(previous_xy, dtype=float)
     moved = pos.copy()
     step = np.zeros(len(pos)) if prev is None else np.linalg.norm(pos - prev, axis=1)
-    reach = radius_m + _NEAR_SLACK_M + (float(step.max()) if len(step) else 0.0)
+    reach = radius_m + NEAR_SLACK_M + (float(step.max()) if len(step) else 0.0)
     dist = _distances(pos, segments, ped_idx, seg_idx)
     near = dist < reach
     near_ped, near_seg, near_dist = ped_idx[near], seg_idx[near], dist[near]

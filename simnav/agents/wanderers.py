@@ -52,6 +52,8 @@ class Wanderers:
         keep_out: np.ndarray | None = None,
     ) -> None:
         self._roadmap = roadmap
+        self._nodes_xy = roadmap.nodes_xy
+        self._no_obstacles = np.zeros((0, 2))
         self._rng = rng
         self._speed_m_s = speed_m_s
         self._radius_m = radius_m
@@ -64,6 +66,7 @@ class Wanderers:
         self._vel = np.zeros_like(self._pos)
         self._yaw_rate = np.zeros(len(spots))
         self._blocked_s = np.zeros(len(spots))
+        self._reached = np.zeros(len(spots), dtype=np.int64)  # _advance lists the robots at their next node here
 
     @property
     def count(self) -> int:
@@ -115,32 +118,27 @@ class Wanderers:
         """
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
-        if self.count == 0:
+        if len(self._pos) == 0:
             return
-        to_next = self._roadmap.nodes_xy[self._next] - self._pos
-        points = self._pos
-        if obstacles_xy is not None:
-            points = np.concatenate([np.asarray(obstacles_xy, dtype=float).reshape(-1, 2), points])
-        rel = points[None, :, :] - self._pos[:, None, :]
-        # the bearings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
-        heading = np.arctan2(to_next[:, 1], to_next[:, 0])
-        bearing = np.arctan2(rel[..., 1], rel[..., 0])
-        self._yaw, self._yaw_rate, self._vel, self._pos, blocked = _drive(
-            self._pos, self._yaw, to_next, heading, rel, bearing, self._speed_m_s, dt_s,
-            min(HEADING_GAIN_1_S, 1.0 / dt_s),
+        obstacles = self._no_obstacles if obstacles_xy is None else np.ascontiguousarray(obstacles_xy, dtype=float)
+        if obstacles.ndim != 2 or obstacles.shape[1] != 2:
+            obstacles = obstacles.reshape(-1, 2)
+        # the heading and bearings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
+        yx = _sightlines(self._pos, self._next, self._nodes_xy, obstacles)
+        angles = np.arctan2(yx[0], yx[1])
+        self._yaw, self._yaw_rate, self._vel, self._pos, reached = _advance(
+            self._pos, self._yaw, self._prev, self._next, self._blocked_s, self._nodes_xy, obstacles, angles,
+            self._speed_m_s, dt_s, min(HEADING_GAIN_1_S, 1.0 / dt_s), self._reached,
         )
-        self._update_nodes(blocked, dt_s)
+        if reached:
+            for k in self._reached[:reached]:
+                self._leave_node(int(k))
 
-    def _update_nodes(self, blocked: np.ndarray, dt_s: float) -> None:
-        self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
-        for k in np.nonzero(self._blocked_s >= BLOCKED_TIMEOUT_S)[0]:
-            self._prev[k], self._next[k] = self._next[k], self._prev[k]
-            self._blocked_s[k] = 0.0
-        dist = np.linalg.norm(self._roadmap.nodes_xy[self._next] - self._pos, axis=1)
-        for k in np.nonzero(dist < NODE_REACHED_M)[0]:
-            node = int(self._next[k])
-            self._next[k] = self._pick_next(node, int(self._prev[k]))
-            self._prev[k] = node
+    def _leave_node(self, k: int) -> None:
+        """Robot k, at its next node, heads for a neighbour of it."""
+        node = int(self._next[k])
+        self._next[k] = self._pick_next(node, int(self._prev[k]))
+        self._prev[k] = node
 
     def _pick_next(self, node: int, previous: int | None) -> int:
         options = self._roadmap.neighbors(node)
@@ -198,6 +196,64 @@ class Wanderers:
 def _wrap(angle_rad: float) -> float:
     """``angle_rad`` wrapped to [-π, π) as :func:`simnav.agents.crowd.wrap_angle` does."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def _offsets(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray,
+             obstacles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) offsets from the N robots to their next nodes, and (N, P, 2) to the points that may block them: the
+    (P − N, 2) ``obstacles``, then the robots (metres)."""
+    n, o = pos.shape[0], obstacles.shape[0]
+    to_next, rel = np.empty((n, 2)), np.empty((n, o + n, 2))
+    for i in range(n):
+        to_next[i, 0], to_next[i, 1] = nodes_xy[next_nodes[i], 0] - pos[i, 0], nodes_xy[next_nodes[i], 1] - pos[i, 1]
+        for k in range(o + n):
+            px, py = (obstacles[k, 0], obstacles[k, 1]) if k < o else (pos[k - o, 0], pos[k - o, 1])
+            rel[i, k, 0], rel[i, k, 1] = px - pos[i, 0], py - pos[i, 1]
+    return to_next, rel
+
+
+@njit(cache=True)
+def _sightlines(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+    """The :func:`_offsets` as the y (row 0) and x (row 1) arguments of ``arctan2``: (2, N + N·P), the next nodes
+    first."""
+    to_next, rel = _offsets(pos, next_nodes, nodes_xy, obstacles)
+    n, p = rel.shape[0], rel.shape[1]
+    out = np.empty((2, n + n * p))
+    for i in range(n):
+        out[0, i], out[1, i] = to_next[i, 1], to_next[i, 0]
+        for k in range(p):
+            out[0, n + i * p + k], out[1, n + i * p + k] = rel[i, k, 1], rel[i, k, 0]
+    return out
+
+
+@njit(cache=True)
+def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_nodes: np.ndarray, blocked_s: np.ndarray,
+             nodes_xy: np.ndarray, obstacles: np.ndarray, angles: np.ndarray, speed_m_s: float, dt_s: float,
+             gain_1_s: float, reached: np.ndarray) -> tuple:
+    """One step of N robots: :func:`_drive` (``angles``: the ``arctan2`` of :func:`_sightlines`), then the blocked
+    times (N,) counted and the edges of robots blocked for BLOCKED_TIMEOUT_S turned round, in place.
+
+    Returns:
+        New yaws (rad), yaw rates (rad/s), velocities (m/s), positions (m), and how many robots are within
+        NODE_REACHED_M of their next nodes (their indices, ascending, written to ``reached`` (N,)).
+    """
+    n = pos.shape[0]
+    to_next, rel = _offsets(pos, next_nodes, nodes_xy, obstacles)
+    bearing = angles[n:].reshape((n, rel.shape[1]))
+    new_yaw, rate, vel, new_pos, blocked = _drive(pos, yaw, to_next, angles[:n], rel, bearing, speed_m_s, dt_s,
+                                                  gain_1_s)
+    count = 0
+    for i in range(n):
+        blocked_s[i] = blocked_s[i] + dt_s if blocked[i] else 0.0
+        if blocked_s[i] >= BLOCKED_TIMEOUT_S:
+            prev_nodes[i], next_nodes[i] = next_nodes[i], prev_nodes[i]
+            blocked_s[i] = 0.0
+        dx, dy = nodes_xy[next_nodes[i], 0] - new_pos[i, 0], nodes_xy[next_nodes[i], 1] - new_pos[i, 1]
+        if math.sqrt(dx * dx + dy * dy) < NODE_REACHED_M:
+            reached[count] = i
+            count += 1
+    return new_yaw, rate, vel, new_pos, count
 
 
 @njit(cache=True)

@@ -42,6 +42,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
 from simnav.agents import RoadmapGraph
 from simnav.config import validate
@@ -101,6 +102,8 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self.robot_spec = _task_robot(cfg)
         self.lidar = resolve_lidar2d(self.robot_spec.sensors[0])
         self.camera = resolve_rgbd(self.robot_spec.sensors[1]) if cfg.depth else None
+        self._lidar_name = self.robot_spec.sensors[0].name
+        self._camera_name = self.robot_spec.sensors[1].name if cfg.depth else None
         self.world_spec, self.roadmap, self._starts, self._goals_from = _task_world(cfg, self.robot_spec)
         _check_pose_source(cfg.pose_source, self.robot_spec)
         drive = self.robot_spec.drive
@@ -152,6 +155,7 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         goal = goals[int(self.np_random.integers(len(goals)))]
         self._goal_xy = (np.asarray(goal_xy, dtype=np.float64).reshape(2) if goal_xy is not None
                          else self.roadmap.nodes_xy[goal].copy())
+        self._goal_x, self._goal_y = self._goal_xy.tolist()
         # The world as it is at t = 0, with the robot at the start
         sim = self._simulator(sim_seed)
         sim.reset(seed=sim_seed, spawn=self._starts[k])
@@ -162,11 +166,12 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._pose.anchor(0.0, se2.from_se3(sim.T_world_base))
             for reading in readings:
                 self._pose.feed(reading)
-        self._distance_m = self._true_distance_m()
+        pose = sim.pose_xy_yaw
+        self._distance_m = self._distance_from(pose)
         self._contacts_seen = 0
         info = {"distance_to_goal_m": self._distance_m, "goal_xy": self._goal_xy.copy(),
-                "start_xy_yaw": np.array(sim.pose_xy_yaw)}
-        return self._observe(), info
+                "start_xy_yaw": np.array(pose)}
+        return self._observe(pose), info
 
     def _simulator(self, seed: int):
         """The simulator, built on the first reset (so that making the env, e.g. in a vector env's parent
@@ -192,21 +197,24 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         Raises:
             SimnavError: called before :meth:`reset`, or an action that is not 2 finite numbers.
         """
-        if self._sim is None:
+        sim = self._sim
+        if sim is None:
             raise SimnavError("call reset() before step()")
         a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (2,) or not np.isfinite(a).all():
+        v, w = a.tolist() if a.shape == (2,) else (math.nan, math.nan)
+        if not (math.isfinite(v) and math.isfinite(w)):
             raise SimnavError(f"action must be 2 finite numbers in [-1, 1] (v, w), got {action!r}")
         # Command and simulate one control period
-        v, w = float(min(max(a[0], -1.0), 1.0)), float(min(max(a[1], -1.0), 1.0))
-        readings = self._sim.step(v * self.max_v_m_s, w * self.max_w_rad_s)
+        v, w = min(max(v, -1.0), 1.0), min(max(w, -1.0), 1.0)
+        readings = sim.step(v * self.max_v_m_s, w * self.max_w_rad_s)
         self.last_readings = readings
         if self._pose is not None:
             for reading in readings:
                 self._pose.feed(reading)
         # Outcome: progress, contacts begun this step, goal reached
-        distance = self._true_distance_m()
-        events = self._sim.contact_events
+        pose = sim.pose_xy_yaw
+        distance = self._distance_from(pose)
+        events = sim.contact_events
         new_contacts = len(events) - self._contacts_seen
         self._contacts_seen = len(events)
         reached = distance <= self.config.success_distance_m
@@ -214,8 +222,8 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._distance_m = distance
         terminated = reached or (new_contacts > 0 and self.config.terminate_on_collision)
         info = {**terms, "distance_to_goal_m": distance, "is_success": reached, "collision": new_contacts > 0,
-                "contacts": len(events), "sim_time_s": self._sim.time_s}
-        return self._observe(), float(sum(terms.values())), terminated, False, info
+                "contacts": len(events), "sim_time_s": sim.time_s}
+        return self._observe(pose), float(sum(terms.values())), terminated, False, info
 
     def _reward_terms(self, progress_m: float, new_contacts: int, reached: bool) -> dict[str, float]:
         r = self.config.reward
@@ -224,17 +232,19 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 "reward_contact": -r.contact * new_contacts,
                 "reward_success": r.success if reached else 0.0}
 
-    def _true_distance_m(self) -> float:
-        x, y, _ = self._sim.pose_xy_yaw
-        return math.hypot(self._goal_xy[0] - x, self._goal_xy[1] - y)
+    def _distance_from(self, pose_xy_yaw: tuple[float, float, float]) -> float:
+        """Distance (m) from the ground-truth ``pose_xy_yaw`` of the base to the goal."""
+        x, y, _ = pose_xy_yaw
+        return math.hypot(self._goal_x - x, self._goal_y - y)
 
     # -------------------------------------------------------------------------------------------- observe
-    def _observe(self) -> dict[str, np.ndarray]:
+    def _observe(self, pose_xy_yaw: tuple[float, float, float]) -> dict[str, np.ndarray]:
+        """The observation now; ``pose_xy_yaw`` is the simulator's ground-truth pose now."""
         sim = self._sim
-        obs = {"lidar": self._lidar_obs(sim.latest(self.robot_spec.sensors[0].name))}
+        obs = {"lidar": self._lidar_obs(sim.latest(self._lidar_name))}
         if self.camera is not None:
-            obs["depth"] = self._depth_obs(sim.latest(self.robot_spec.sensors[1].name))
-        obs["goal"] = self._goal_obs()
+            obs["depth"] = self._depth_obs(sim.latest(self._camera_name))
+        obs["goal"] = self._goal_obs(pose_xy_yaw)
         v, w = sim.base_velocity()
         obs["velocity"] = np.array([min(max(v, -self.max_v_m_s), self.max_v_m_s),
                                     min(max(w, -self.max_w_rad_s), self.max_w_rad_s)], dtype=np.float32)
@@ -243,10 +253,7 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def _lidar_obs(self, scan: LaserScan | None) -> np.ndarray:
         if scan is None:  # nothing delivered yet (a latency longer than the control period)
             return np.ones(self.lidar.beams, dtype=np.float32)
-        ranges = np.asarray(scan.ranges_m, dtype=np.float32)
-        out = ranges * np.float32(1.0 / scan.max_range_m)
-        out[ranges <= 0] = 1.0
-        return np.minimum(out, 1.0, out=out)
+        return _scaled_ranges(np.asarray(scan.ranges_m, dtype=np.float32), np.float32(1.0 / scan.max_range_m))
 
     def _depth_obs(self, frame: RGBDFrame | None) -> np.ndarray:
         if frame is None:
@@ -254,14 +261,15 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         out = np.asarray(frame.depth_m, dtype=np.float32) * np.float32(1.0 / self.camera.max_range_m)
         return np.clip(out, 0.0, 1.0, out=out)
 
-    def _goal_obs(self) -> np.ndarray:
-        """Distance (m) and bearing (rad) of the goal in the base frame, from the pose source."""
+    def _goal_obs(self, pose_xy_yaw: tuple[float, float, float]) -> np.ndarray:
+        """Distance (m) and bearing (rad) of the goal in the base frame, from the pose source (ground truth:
+        ``pose_xy_yaw``)."""
         if self._pose is None:
-            x, y, yaw = self._sim.pose_xy_yaw
+            x, y, yaw = pose_xy_yaw
         else:
             T = self._pose.T_world_base()
             x, y, yaw = float(T[0, 2]), float(T[1, 2]), math.atan2(T[1, 0], T[0, 0])
-        dx, dy = self._goal_xy[0] - x, self._goal_xy[1] - y
+        dx, dy = self._goal_x - x, self._goal_y - y
         c, s = math.cos(yaw), math.sin(yaw)
         distance = min(math.hypot(dx, dy), self._max_goal_m)
         return np.array([distance, math.atan2(-s * dx + c * dy, c * dx + s * dy)], dtype=np.float32)
@@ -389,3 +397,13 @@ def _make_pose_source(name: str, robot: RobotSpec):
     from simnav.mission.pose import PoseSource
 
     return PoseSource(name, robot)
+
+
+@njit(cache=True)
+def _scaled_ranges(ranges_m: np.ndarray, scale: np.float32) -> np.ndarray:
+    """(B,) float32 ``ranges_m · scale`` capped at 1, and 1 where a range is invalid (<= 0)."""
+    out = np.empty(ranges_m.shape[0], dtype=np.float32)
+    for i in range(ranges_m.shape[0]):
+        scaled = ranges_m[i] * scale
+        out[i] = 1.0 if ranges_m[i] <= 0 or scaled > 1.0 else scaled
+    return out

@@ -1,8 +1,14 @@
-"""Noise models turning ideal readings into realistic ones. Pure numpy; invalid values become 0, never NaN."""
+"""Noise models turning ideal readings into realistic ones (numpy draws; Numba for the lidar's per-beam pass);
+invalid values become 0, never NaN."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
+
+_NONE = np.zeros(0)  # no draws (no noise, no dropouts)
 
 
 def lidar_noise(
@@ -16,12 +22,27 @@ def lidar_noise(
     Returns:
         (N,) float32 noisy ranges, 0 = invalid.
     """
-    valid = ranges_m > 0
-    noisy = ranges_m + rng.normal(0.0, noise_std_m, ranges_m.shape) if noise_std_m > 0 else ranges_m.copy()
-    if dropout_prob > 0:
-        valid &= rng.random(ranges_m.shape) >= dropout_prob
-    valid &= (noisy >= min_range_m) & (noisy <= max_range_m) & np.isfinite(noisy)
-    return np.where(valid, noisy, 0.0).astype(np.float32)
+    ranges = np.ascontiguousarray(ranges_m, dtype=np.float64).reshape(-1)
+    # rng.normal(0, std) is 0 + std·z of these draws of z: the same stream, scaled in the pass below
+    normals = rng.standard_normal(ranges.shape[0]) if noise_std_m > 0 else _NONE
+    uniforms = rng.random(ranges.shape[0]) if dropout_prob > 0 else _NONE
+    out = _noisy_ranges(ranges, normals, noise_std_m, uniforms, dropout_prob, min_range_m, max_range_m)
+    return out.reshape(ranges_m.shape)
+
+
+@njit(cache=True)
+def _noisy_ranges(ranges_m: np.ndarray, normals: np.ndarray, noise_std_m: float, uniforms: np.ndarray,
+                  dropout_prob: float, min_range_m: float, max_range_m: float) -> np.ndarray:
+    """(N,) float32 ``ranges_m + noise_std_m · normals`` where the ideal range is valid (> 0), the beam not dropped
+    (its uniform draw >= ``dropout_prob``) and the noisy range finite within [min, max]; 0 elsewhere. Empty
+    ``normals`` or ``uniforms``: no noise, no dropouts."""
+    out = np.empty(ranges_m.shape[0], dtype=np.float32)
+    for i in range(ranges_m.shape[0]):
+        noisy = ranges_m[i] + noise_std_m * normals[i] if normals.shape[0] else ranges_m[i]
+        valid = ranges_m[i] > 0 and (uniforms.shape[0] == 0 or uniforms[i] >= dropout_prob)
+        valid = valid and noisy >= min_range_m and noisy <= max_range_m and math.isfinite(noisy)
+        out[i] = noisy if valid else 0.0
+    return out
 
 
 def depth_noise(

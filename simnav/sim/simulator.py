@@ -16,9 +16,10 @@ from concurrent.futures import Future
 
 import mujoco
 import numpy as np
+from numba import njit
 
-from simnav.agents import Crowd, DoorLeaf, RoadmapGraph, Wanderers
-from simnav.agents.doors import door_segments
+from simnav.agents import Crowd, RoadmapGraph, Wanderers
+from simnav.agents.doors import DoorLeaves
 from simnav.errors import SimnavError
 from simnav.robot.spec import Lidar2DSensor, Lidar3DSensor, RGBDSensor, RobotSpec, WheelEncoderSensor
 from simnav.sensors.lidar import Lidar2D, Lidar3D
@@ -33,6 +34,7 @@ from simnav.world.schema import WorldSpec
 
 log = logging.getLogger(__name__)
 _EPS_S = 1e-9
+_NEVER = 2**62  # a physics step never reached
 MOTOR_PERIOD_S = 0.01  # the motor controller applies its acceleration ramp at 100 Hz
 
 
@@ -56,19 +58,25 @@ class Simulator:
         self.model, self.index = build_scene(world, robot, self.pedestrian_count, self.wanderer_count,
                                              self.config.physics_dt_s)
         self.data = mujoco.MjData(self.model)
-        self._qpos, self._ctrl = self.data.qpos, self.data.ctrl  # views kept for the stepping loop
+        # views kept for the stepping loop
+        self._qpos, self._qvel, self._ctrl = self.data.qpos, self.data.qvel, self.data.ctrl
+        self._mocap_pos, self._mocap_quat = self.data.mocap_pos, self.data.mocap_quat
         q0, v0 = int(self.index.qpos_adr[0]), int(self.index.dof_adr[0])
         self._qs, self._vs = slice(q0, q0 + 3), slice(v0, v0 + 3)  # the base's x, y, yaw (contiguous)
+        self._base_qpos, self._base_qvel = self.data.qpos[self._qs], self.data.qvel[self._vs]  # (3,) x, y, yaw views
         self.roadmap = RoadmapGraph.from_spec(world.roadmap)
         self._walls_xy = obstacle_segments(world)
         self.robot_radius_m = _circumradius(robot)
         self._motor_substeps = max(1, round(MOTOR_PERIOD_S / self.config.physics_dt_s))
-        self._dt_s, self._agent_substeps = self.config.physics_dt_s, self.config.agent_substeps
+        self._dt_s, self._agent_dt_s = self.config.physics_dt_s, self.config.agent_dt_s
+        self._substeps, self._agent_substeps = self.config.substeps, self.config.agent_substeps
         motor_dt = self._motor_substeps * self._dt_s
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
         self.sensors = self._make_sensors()
         self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
+        self._sees_scene = [not isinstance(s, WheelEncoders) for s in self.sensors]
+        self._capture_rank = [0 if isinstance(s, RGBDCamera) else 1 for s in self.sensors]  # cameras first
         self.reset(seed)
 
     # ------------------------------------------------------------------------------------------------ set-up
@@ -105,11 +113,12 @@ class Simulator:
         self._active_contacts: set[int] = set()
         self.contact_events: list[ContactEvent] = []
         self._step_count = 0
-        self._history: deque[tuple[float, float, float, float]] = deque(maxlen=4096)
-        self._history.append((0.0, *self.pose_xy_yaw))
+        # (physics step, x, y, yaw as in qpos: T_world_base_at wraps it) after every stretch of physics steps
+        self._history: deque[tuple[int, float, float, float]] = deque(maxlen=4096)
+        self._history.append((0, *self._base_qpos.tolist()))
         self._pose_agents_at(0.0)
         mujoco.mj_forward(self.model, self.data)
-        self._capture_due()  # every sensor's first reading is at t = 0
+        self._capture_due(0.0)  # every sensor's first reading is at t = 0
 
     def _place_robot(self, spawn: int | None) -> None:
         k = spawn if spawn is not None else (self.config.spawn or 0)
@@ -133,12 +142,14 @@ class Simulator:
                                                          np.full(self.crowd.count, 0.6)])])
         self.wanderers = Wanderers(self.roadmap, self.wanderer_count, self._rng_wanderers,
                                    speed_m_s=agents.robot_speed_m_s, radius_m=WANDERER_RADIUS_M, keep_out=keep_out)
-        self.doors = [DoorLeaf(d) for d in self.world.doors]
+        self.doors = DoorLeaves(self.world.doors)
         self._agent_time_s = 0.0
         self._posed_at: tuple[float, float] | None = None
+        self._keep_agent_state()
+        self._turners = (self.index.door_mocap, self.doors.yaws_rad, self.doors.yaw_rates_rad_s)  # change in place
 
     def _reset_drive(self) -> None:
-        self._commands: deque[tuple[float, float, float]] = deque([(-math.inf, 0.0, 0.0)])  # (apply at s, v, w)
+        self._commands = deque([self._command(-math.inf, 0.0, 0.0)])
         self._v_m_s = 0.0
         self._w_rad_s = 0.0
         self.data.ctrl[:] = 0.0
@@ -148,6 +159,7 @@ class Simulator:
         self._schedule_changed()
         self._pending: list[tuple[float, int, Reading | Future]] = []
         self._pending_seq = 0
+        self._pending_changed()
         self._latest: dict[str, Reading] = {}
         for s in self.sensors:
             if isinstance(s, WheelEncoders):
@@ -177,112 +189,146 @@ class Simulator:
         if not (math.isfinite(v_m_s) and math.isfinite(w_rad_s)):
             raise SimnavError(f"velocity command must be finite, got v={v_m_s}, w={w_rad_s}")
         drive = self.robot.drive
-        v = float(np.clip(v_m_s, -drive.max_v_m_s, drive.max_v_m_s))
-        w = float(np.clip(w_rad_s, -drive.max_w_rad_s, drive.max_w_rad_s))
+        v = _clamp(v_m_s, drive.max_v_m_s)
+        w = _clamp(w_rad_s, drive.max_w_rad_s)
         if measured:
             self._commands.clear()
-            self._commands.append((self.time_s, v, w))
+            self._commands.append(self._command(self.time_s, v, w))
             self._v_m_s, self._w_rad_s = v, w
         else:
-            self._commands.append((self.time_s + drive.command_latency_s, v, w))
-        delivered: list[Reading] = []
-        end = self._step_count + self.config.substeps
-        while self._step_count < end:
-            delivered += self._advance(self._steps_to_next_event(end))
-        return delivered
+            self._commands.append(self._command(self.time_s + drive.command_latency_s, v, w))
+        return self._run_until(self._step_count + self._substeps)
 
-    def _steps_to_next_event(self, end: int) -> int:
-        """Physics steps until something must happen in Python: agents, a sensor, the motor, the period end."""
-        k, agent = self._step_count, self._agent_substeps
-        # the earliest capture (a whole step, at least the next one), the agents' period and the period end
-        nxt = min(end, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
-        # a command arriving after its latency
-        if len(self._commands) > 1:
-            nxt = min(nxt, max(math.ceil(self._commands[1][0] / self._dt_s - 1e-6), k + 1))
+    def _command(self, apply_at_s: float, v: float, w: float) -> tuple[int, int, float, float]:
+        """A queued command applying at ``apply_at_s`` (s): (the physics step the stepping pauses at for it, the
+        first step whose time has reached it, v m/s, w rad/s)."""
+        if apply_at_s == -math.inf:
+            return 0, 0, v, w
+        return *self._steps_at(apply_at_s), v, w
+
+    def _steps_at(self, t_s: float) -> tuple[int, int]:
+        """The physics step the stepping pauses at for time ``t_s`` (s; the first step at or after it, up to 1e-6
+        of a step), and the first step whose ``time_s`` has reached it (within _EPS_S); _NEVER for inf."""
+        if t_s == math.inf:
+            return _NEVER, _NEVER
+        dt = self._dt_s
+        pause = math.ceil(t_s / dt - 1e-6)
+        k = max(pause, 0)
+        while k > 0 and t_s <= round((k - 1) * dt, 9) + _EPS_S:
+            k -= 1
+        while t_s > round(k * dt, 9) + _EPS_S:
+            k += 1
+        return pause, k
+
+    def _steps_to_next_event(self, k: int, end: int) -> int:
+        """Physics steps from step ``k`` until something must happen in Python: agents, a sensor, the motor, the
+        period end (step ``end``)."""
+        commands, nxt = self._commands, end
         # the motor controller's next acceleration update while it ramps towards the command
-        if self._ramping():
-            nxt = min(nxt, (k // self._motor_substeps + 1) * self._motor_substeps)
+        _, _, v_target, w_target = commands[0]
+        if v_target != self._v_m_s or w_target != self._w_rad_s:
+            motor = self._motor_substeps
+            nxt = min(nxt, (k // motor + 1) * motor)
+            if nxt == k + 1:
+                return 1  # every other event is at least a step away
+        # the earliest capture (a whole step, at least the next one) and the agents' period
+        agent = self._agent_substeps
+        nxt = min(nxt, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
+        # a command arriving after its latency
+        if len(commands) > 1:
+            nxt = min(nxt, max(commands[1][0], k + 1))
         return nxt - k
 
     def _schedule_changed(self) -> None:
-        """Cache the earliest capture time and its physics step (``_next_capture_s`` changed)."""
-        self._next_due_s = min(self._next_capture_s, default=math.inf)
-        steps = [math.ceil(t / self._dt_s - 1e-6) for t in self._next_capture_s]
-        self._next_capture_step = min(steps, default=2**62)
+        """Cache the physics step the stepping pauses at for the earliest capture, and the first step whose time
+        has reached it (``_next_capture_s`` changed)."""
+        self._next_capture_step, self._next_due_step = self._steps_at(min(self._next_capture_s, default=math.inf))
 
-    def _advance(self, n: int) -> list[Reading]:
-        """Run ``n`` physics steps with constant controls, then do what is due at the new time."""
+    def _pending_changed(self) -> None:
+        """Cache the first physics step whose time has reached the earliest pending delivery."""
+        self._delivery_step = self._steps_at(self._pending[0][0])[1] if self._pending else _NEVER
+
+    def _run_until(self, end: int) -> list[Reading]:
+        """Run the physics up to step ``end`` in stretches of constant controls, doing what is due after each;
+        returns the readings delivered meanwhile, oldest first."""
+        delivered: list[Reading] = []
+        model, data, base_qpos, history = self.model, self.data, self._base_qpos, self._history
+        dt, agent, encoders = self._dt_s, self._agent_substeps, self._encoders
         k = self._step_count
-        # agents move on their own period (their state is one period ahead; poses are interpolated)
-        if k % self._agent_substeps == 0:
-            self._step_agents()
-        # motor model: latency, then acceleration limits at the motor controller's rate
-        self._apply_drive(round(k * self._dt_s, 9))
-        encoders = self._encoders
-        if encoders:
-            v0, w0 = self.base_velocity()
-        mujoco.mj_step(self.model, self.data, nstep=n)
-        self._step_count = k = k + n
-        t = round(k * self._dt_s, 9)
-        if encoders:
-            v1, w1 = self.base_velocity()
-            for s in encoders:
-                s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * self._dt_s)
-        x, y, yaw = self._qpos[self._qs].tolist()
-        self._history.append((t, x, y, math.atan2(math.sin(yaw), math.cos(yaw))))
-        if self.data.ncon:
-            self._check_contacts()
-        else:
-            self._active_contacts.clear()
-        # sensors due now, and readings whose latency has passed
-        if self._next_due_s <= t + _EPS_S:
-            self._capture_due()
-        if self._pending and self._pending[0][0] <= t + _EPS_S:
-            return self._deliver()
-        return []
+        while k < end:
+            n = self._steps_to_next_event(k, end)
+            # agents move on their own period (their state is one period ahead; poses are interpolated)
+            if k % agent == 0:
+                self._step_agents()
+            # motor model: latency, then acceleration limits at the motor controller's rate
+            self._apply_drive(k)
+            if encoders:
+                v0, w0 = self.base_velocity()
+            mujoco.mj_step(model, data, n)
+            self._step_count = k = k + n
+            if encoders:
+                v1, w1 = self.base_velocity()
+                for s in encoders:
+                    s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
+            history.append((k, *base_qpos.tolist()))
+            if data.ncon:
+                self._check_contacts()
+            else:
+                self._active_contacts.clear()
+            # sensors due now, and readings whose latency has passed
+            if k >= self._next_due_step:
+                self._capture_due(self.time_s)
+            if k >= self._delivery_step:
+                delivered += self._deliver()
+        return delivered
 
-    def _ramping(self) -> bool:
-        _, v_target, w_target = self._commands[0]
-        return v_target != self._v_m_s or w_target != self._w_rad_s
-
-    def _apply_drive(self, now: float) -> None:
-        """Commands whose latency has passed at ``now`` (s) take effect; the motor ramps towards the latest one."""
+    def _apply_drive(self, k: int) -> None:
+        """Commands whose latency has passed at step ``k`` take effect; the motor ramps towards the latest one."""
         commands = self._commands
-        while len(commands) > 1 and commands[1][0] <= now + _EPS_S:
+        while len(commands) > 1 and commands[1][1] <= k:
             commands.popleft()
-        _, v_target, w_target = commands[0]
+        _, _, v_target, w_target = commands[0]
         v, w = self._v_m_s, self._w_rad_s
-        if self._step_count % self._motor_substeps == 0 or (v_target == v and w_target == w):
+        if k % self._motor_substeps == 0 or (v_target == v and w_target == w):
             dv_max, dw_max = self._ramp_limits
-            # python floats: min/max is np.clip without its per-call overhead
-            self._v_m_s = v = v + min(max(v_target - v, -dv_max), dv_max)
-            self._w_rad_s = w = w + min(max(w_target - w, -dw_max), dw_max)
+            dv, dw = v_target - v, w_target - w
+            # the change clipped to the limits (min(max(dv, -dv_max), dv_max) without the builtin calls)
+            self._v_m_s = v = v + (dv_max if dv > dv_max else -dv_max if dv < -dv_max else dv)
+            self._w_rad_s = w = w + (dw_max if dw > dw_max else -dw_max if dw < -dw_max else dw)
         ctrl = self._ctrl
         ctrl[0], ctrl[1], ctrl[2] = v, 0.0, w
 
     def _step_agents(self) -> None:
-        dt = self.config.agent_dt_s
-        robot_xy = self.data.qpos[self._qs][:2].copy()
-        robot_vel = self.data.qvel[self._vs][:2].copy()
-        wanderers = self.wanderers
-        circles = np.vstack([[*robot_xy, self.robot_radius_m],
-                             np.column_stack([wanderers.positions_xy, np.full(wanderers.count, WANDERER_RADIUS_M)])])
+        """Advance the people, the other robots and the doors by one agent period and pose them at the current time."""
+        dt, crowd, wanderers = self._agent_dt_s, self.crowd, self.wanderers
+        people_count, robots = crowd.count, 1 + wanderers.count
+        # blockers: circles of the robot and the other robots before this step, then of the people after it;
+        # nearby: the people and the robot, then the other robots after their step
+        blockers, nearby = np.empty((robots + people_count, 3)), np.empty((people_count + robots, 2))
+        circles, circle_vel = blockers[:robots], np.empty((robots, 2))
+        _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m,
+                    wanderers.positions_xy, wanderers.velocities_xy, WANDERER_RADIUS_M)
         # people (an empty crowd has nothing to step), then the other robots, then the doors
-        if self.crowd.count:
-            circle_vel = np.vstack([robot_vel, wanderers.velocities_xy])
-            doors = door_segments(self.doors) if self.doors else None
-            self.crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
-        people = self.crowd.positions_xy
-        others = np.vstack([people, robot_xy[None]])
+        if people_count:
+            doors = self.doors.segments_xy() if self.doors else None
+            crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
+        _people_rows(nearby, blockers, crowd.positions_xy, crowd.radius_m, robots)
         if wanderers.count:
-            wanderers.step(dt, others)
+            wanderers.step(dt, nearby[:people_count + 1])
         if self.doors:
-            nearby = np.vstack([others, wanderers.positions_xy])
-            blockers = np.vstack([circles, np.column_stack([people, np.full(len(people), self.crowd.radius_m)])])
-            for door in self.doors:
-                door.update(self._agent_time_s + dt, dt, nearby, blockers)
+            nearby[people_count + 1:] = wanderers.positions_xy
+            self.doors.update(self._agent_time_s + dt, dt, nearby, blockers)
         self._agent_time_s += dt
+        self._keep_agent_state()
         self._pose_agents_at(self.time_s)
+
+    def _keep_agent_state(self) -> None:
+        """Fetch the arrays of the people and other robots that poses are interpolated from (the agents replace
+        them when they step)."""
+        idx = self.index
+        self._movers = [(rows, agents.positions_xy, agents.velocities_xy, agents.yaws_rad, agents.yaw_rates_rad_s)
+                        for rows, agents in ((idx.pedestrian_mocap, self.crowd), (idx.wanderer_mocap, self.wanderers))
+                        if len(rows)]
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
@@ -290,24 +336,17 @@ class Simulator:
             return
         self._posed_at = (t_s, self._agent_time_s)
         back = max(self._agent_time_s - t_s, 0.0)
-        d, idx = self.data, self.index
-        for mocap, agents in ((idx.pedestrian_mocap, self.crowd), (idx.wanderer_mocap, self.wanderers)):
-            if len(mocap):
-                xy = agents.positions_xy - agents.velocities_xy * back
-                d.mocap_pos[mocap, :2] = xy
-                d.mocap_pos[mocap, 2] = 0.0
-                d.mocap_quat[mocap] = _yaw_quats(agents.yaws_rad - agents.yaw_rates_rad_s * back)
-        if len(idx.door_mocap):
-            yaws = np.array([door.yaw_rad - door.yaw_rate_rad_s * back for door in self.doors])
-            d.mocap_quat[idx.door_mocap] = _yaw_quats(yaws)
+        for rows, xy, vel, yaw, yaw_rate in self._movers:
+            _pose_movers(self._mocap_pos, self._mocap_quat, rows, xy, vel, yaw, yaw_rate, back)
+        _pose_turners(self._mocap_quat, *self._turners, back)
 
     # -------------------------------------------------------------------------------------------- sensors
-    def _capture_due(self) -> None:
-        t = self.time_s
+    def _capture_due(self, t: float) -> None:
+        """Take the readings due at the current time ``t`` (s) and queue them for delivery after their latency."""
         due = [k for k, next_s in enumerate(self._next_capture_s) if next_s <= t + _EPS_S]
         if not due:
             return
-        if any(not isinstance(self.sensors[k], WheelEncoders) for k in due):
+        if any(map(self._sees_scene.__getitem__, due)):
             self._pose_agents_at(t)
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_camlight(self.model, self.data)
@@ -315,7 +354,7 @@ class Simulator:
         # has its own noise stream and nothing here changes the state, so the order does not change a reading)
         twists = None
         readings: dict[int, Reading | Future] = {}
-        for k in sorted(due, key=lambda k: not isinstance(self.sensors[k], RGBDCamera)):
+        for k in sorted(due, key=self._capture_rank.__getitem__):
             sensor, rng = self.sensors[k], self._rng_sensors[k]
             if isinstance(sensor, WheelEncoders):
                 readings[k] = sensor.capture(t, rng)
@@ -331,17 +370,19 @@ class Simulator:
             heapq.heappush(self._pending, (round(t + sensor.latency_s, 9), self._pending_seq, readings[k]))
             self._pending_seq += 1
         self._schedule_changed()
+        self._pending_changed()
 
     def _deliver(self) -> list[Reading]:
         """Readings due by now, in order. Camera frames are made in the background (futures): in lockstep mode
         a due frame is waited for; otherwise delivery pauses at the first frame not finished yet."""
-        out = []
-        while self._pending and self._pending[0][0] <= self.time_s + _EPS_S:
+        out, now = [], self.time_s
+        while self._pending and self._pending[0][0] <= now + _EPS_S:
             item = self._pending[0][2]
             if isinstance(item, Future) and not (self.config.lockstep or item.done()):
                 break
             heapq.heappop(self._pending)
             out.append(self._receive(item))
+        self._pending_changed()
         return out
 
     def flush(self) -> list[Reading]:
@@ -349,6 +390,7 @@ class Simulator:
         out = []
         while self._pending:
             out.append(self._receive(heapq.heappop(self._pending)[2]))
+        self._pending_changed()
         return out
 
     def _receive(self, item: Reading | Future) -> Reading:
@@ -361,9 +403,9 @@ class Simulator:
         self.data.qpos[self._qs] = [x_m, y_m, yaw_rad]
         self.data.qvel[self._vs] = 0.0
         self._v_m_s = self._w_rad_s = 0.0
-        self._commands = deque([(-math.inf, 0.0, 0.0)])
+        self._commands = deque([self._command(-math.inf, 0.0, 0.0)])
         mujoco.mj_forward(self.model, self.data)
-        self._history.append((self.time_s, *self.pose_xy_yaw))
+        self._history.append((self._step_count, *self._base_qpos.tolist()))
 
     def capture_now(self, sensor: str) -> Reading:
         """Take a reading of ``sensor`` at the current time, outside its schedule (its noise stream advances)."""
@@ -428,15 +470,16 @@ class Simulator:
     @property
     def pose_xy_yaw(self) -> tuple[float, float, float]:
         """Ground-truth planar pose (x m, y m, yaw rad in (-pi, pi])."""
-        x, y, yaw = self.data.qpos[self._qs].tolist()
-        return float(x), float(y), float(math.atan2(math.sin(yaw), math.cos(yaw)))
+        x, y, yaw = self._base_qpos.tolist()
+        return x, y, math.atan2(math.sin(yaw), math.cos(yaw))
 
     def T_world_base_at(self, stamp_s: float) -> np.ndarray:
         """(4, 4) ground-truth base pose at a past time ``stamp_s`` (within the last few seconds), s."""
         k = len(self._history) - 1
-        while k > 0 and self._history[k][0] > stamp_s + _EPS_S:
+        while k > 0 and round(self._history[k][0] * self._dt_s, 9) > stamp_s + _EPS_S:
             k -= 1
         _, x, y, yaw = self._history[k]
+        yaw = math.atan2(math.sin(yaw), math.cos(yaw))
         c, s = math.cos(yaw), math.sin(yaw)
         T = np.eye(4)
         T[:2, :2] = [[c, -s], [s, c]]
@@ -445,9 +488,9 @@ class Simulator:
 
     def base_velocity(self) -> tuple[float, float]:
         """Ground-truth forward speed (m/s, along base x) and yaw rate (rad/s)."""
-        vx, vy, w = self.data.qvel[self._vs].tolist()
-        yaw = float(self.data.qpos[self._qs.start + 2])
-        return float(vx * math.cos(yaw) + vy * math.sin(yaw)), float(w)
+        vx, vy, w = self._base_qvel.tolist()
+        yaw = self._base_qpos[2].item()
+        return vx * math.cos(yaw) + vy * math.sin(yaw), w
 
     def body_twists_world(self) -> np.ndarray:
         """(nbody, 6): world linear velocity of each body's origin and its angular velocity (m/s, rad/s).
@@ -461,7 +504,7 @@ class Simulator:
         tw[idx.pedestrian_body, 5] = self.crowd.yaw_rates_rad_s
         tw[idx.wanderer_body, :2] = self.wanderers.velocities_xy
         tw[idx.wanderer_body, 5] = self.wanderers.yaw_rates_rad_s
-        tw[idx.door_body, 5] = [door.yaw_rate_rad_s for door in self.doors]
+        tw[idx.door_body, 5] = self.doors.yaw_rates_rad_s
         tw[idx.robot_body, :2] = self.data.qvel[self._vs][:2]
         tw[idx.robot_body, 5] = self.data.qvel[self._vs][2]
         return tw
@@ -483,8 +526,61 @@ def _circumradius(robot: RobotSpec) -> float:
     return max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
 
 
-def _yaw_quats(yaw: np.ndarray) -> np.ndarray:
-    yaw = np.asarray(yaw, dtype=float)
-    q = np.zeros((*yaw.shape, 4))
-    q[..., 0], q[..., 3] = np.cos(yaw / 2), np.sin(yaw / 2)
-    return q
+def _clamp(x: float, limit: float) -> float:
+    """``np.clip(x, -limit, limit)`` as a python float (min/max give the same for floats, without numpy's cost)."""
+    if isinstance(x, float):
+        return float(min(max(x, -limit), limit))
+    return float(np.clip(x, -limit, limit))
+
+
+@njit(cache=True)
+def _robot_rows(circles: np.ndarray, velocities: np.ndarray, base_q: np.ndarray, base_v: np.ndarray, radius_m: float,
+                others_xy: np.ndarray, others_vel: np.ndarray, others_radius_m: float) -> None:
+    """Fill the (1 + N, 3) ``circles`` ``[x, y, radius]`` (m) of the robot (base ``base_q`` x, y) and of N other
+    robots at the (N, 2) ``others_xy``, and their (1 + N, 2) ``velocities`` (the robot's: ``base_v`` x, y), m/s."""
+    circles[0, 0], circles[0, 1], circles[0, 2] = base_q[0], base_q[1], radius_m
+    velocities[0, 0], velocities[0, 1] = base_v[0], base_v[1]
+    for k in range(others_xy.shape[0]):
+        circles[1 + k, 0], circles[1 + k, 1], circles[1 + k, 2] = others_xy[k, 0], others_xy[k, 1], others_radius_m
+        velocities[1 + k, 0], velocities[1 + k, 1] = others_vel[k, 0], others_vel[k, 1]
+
+
+@njit(cache=True)
+def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray, radius_m: float,
+                 robots: int) -> None:
+    """Fill ``nearby`` (P + R, 2) with the (P, 2) ``people_xy`` then the robot (``blockers[0]``), and the rows of
+    ``blockers`` (R + P, 3) after its R robots with the people as circles of ``radius_m`` (all metres)."""
+    people = people_xy.shape[0]
+    for i in range(people):
+        x, y = people_xy[i, 0], people_xy[i, 1]
+        nearby[i, 0], nearby[i, 1] = x, y
+        blockers[robots + i, 0], blockers[robots + i, 1], blockers[robots + i, 2] = x, y, radius_m
+    nearby[people, 0], nearby[people, 1] = blockers[0, 0], blockers[0, 1]
+
+
+@njit(cache=True)
+def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, xy: np.ndarray, vel: np.ndarray,
+                 yaw: np.ndarray, yaw_rate: np.ndarray, back_s: float) -> None:
+    """Put mocap body ``rows[k]`` on the floor at ``xy[k] - vel[k]·back_s`` (m), turned to ``yaw[k] -
+    yaw_rate[k]·back_s`` (rad), for the (N, 2) positions and velocities and (N,) yaws and yaw rates of N agents."""
+    for k in range(rows.shape[0]):
+        m = rows[k]
+        mocap_pos[m, 0] = xy[k, 0] - vel[k, 0] * back_s
+        mocap_pos[m, 1] = xy[k, 1] - vel[k, 1] * back_s
+        mocap_pos[m, 2] = 0.0
+        _set_yaw(mocap_quat, m, yaw[k] - yaw_rate[k] * back_s)
+
+
+@njit(cache=True)
+def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray,
+                  back_s: float) -> None:
+    """Turn mocap body ``rows[k]`` to ``yaw[k] - yaw_rate[k]·back_s`` (rad) for the (N,) yaws and yaw rates."""
+    for k in range(rows.shape[0]):
+        _set_yaw(mocap_quat, rows[k], yaw[k] - yaw_rate[k] * back_s)
+
+
+@njit(cache=True)
+def _set_yaw(mocap_quat: np.ndarray, m: int, yaw: float) -> None:
+    """Mocap quaternion ``m`` (w, x, y, z): a turn by ``yaw`` (rad) about the world z axis."""
+    half = yaw / 2
+    mocap_quat[m, 0], mocap_quat[m, 1], mocap_quat[m, 2], mocap_quat[m, 3] = math.cos(half), 0.0, 0.0, math.sin(half)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from simnav.agents import DoorLeaf
-from simnav.agents.doors import DoorStage, door_segments
+from simnav.agents.doors import _BLOCKED, _UNSURE, DoorLeaves, DoorStage, _sweep_verdict, door_segments
 from simnav.world.schema import Door
 
 DT = 0.05
@@ -128,3 +128,42 @@ def test_presence_sensor_ignores_someone_the_leaf_moves_away_from() -> None:
     for k in range(1, 41):
         leaf.update(6.5 + k * DT, DT, behind[:, :2], behind)
     assert leaf.opening == 1.0
+
+
+def test_leaves_update_together_as_each_one_alone() -> None:
+    specs = [_door().spec, _door(hinge=(3.0, 2.0), closed_yaw_deg=180.0, swing_deg=-90.0, phase_s=6.0).spec,
+             _door(hinge=(2.0, 0.5), closed_yaw_deg=90.0, closed_s=0.0, move_s=0.7, phase_s=2.0).spec]
+    together, alone = DoorLeaves(specs), [DoorLeaf(spec) for spec in specs]
+    assert len(together) == 3 and together[1].spec == specs[1]
+    rng = np.random.default_rng(0)
+    people = rng.uniform(0.0, 4.0, (6, 2))
+    for k in range(1, 600):
+        people += rng.normal(0.0, 0.05, people.shape)
+        circles = np.column_stack([people, np.full(len(people), 0.2)])
+        together.update(k * DT, DT, people, circles)
+        for leaf in alone:
+            leaf.update(k * DT, DT, people, circles)
+        state = [(leaf.opening, leaf.stage, leaf.yaw_rad, leaf.yaw_rate_rad_s, leaf.time_s) for leaf in together]
+        assert state == [(leaf.opening, leaf.stage, leaf.yaw_rad, leaf.yaw_rate_rad_s, leaf.time_s) for leaf in alone]
+    np.testing.assert_array_equal(together.segments_xy(), door_segments(alone))
+    np.testing.assert_array_equal(together.yaw_rates_rad_s, [leaf.yaw_rate_rad_s for leaf in alone])
+
+
+def test_compiled_swing_check_agrees_with_the_reference_formula() -> None:
+    leaf = _door()
+    rng = np.random.default_rng(3)
+    for _ in range(3000):
+        before, after = rng.uniform(0.0, 1.0, 2)
+        blockers = np.column_stack([rng.uniform(0.0, 3.0, (3, 2)), rng.uniform(0.05, 0.4, 3)])
+        verdict = _sweep_verdict(leaf._params[0], before, after, blockers)
+        assert verdict == _UNSURE or (verdict == _BLOCKED) == leaf._sweeps_into(before, after, blockers)
+
+
+def test_a_swing_too_close_to_call_is_left_to_the_reference_formula() -> None:
+    leaf = _door(phase_s=6.0)  # closed
+    behind = np.array([[0.85, 2.0, 0.09]])  # beside the hinge, inside the clearance, at a distance the swing keeps
+    assert _sweep_verdict(leaf._params[0], 0.0, 0.1, behind) == _UNSURE
+    assert not leaf._sweeps_into(0.0, 0.1, behind)
+    for k in range(1, 31):
+        leaf.update(k * DT, DT, behind[:, :2], behind)
+    assert leaf.opening == 1.0  # opened for them as if they were not there

@@ -67,7 +67,7 @@ def test_kernels_handle_nobody_and_no_walls() -> None:
 
 @pytest.mark.parametrize("seed", range(4))
 def test_blocking_kernel_matches_numpy(seed: int) -> None:
-    from simnav.agents.crowd import _closest_in_way
+    from simnav.agents.kernels import closest_in_way
 
     rng = np.random.default_rng(seed)
     n, c = 2 + 3 * seed, seed % 3
@@ -82,7 +82,7 @@ def test_blocking_kernel_matches_numpy(seed: int) -> None:
     dist[:, :n] += np.eye(n) * 1e9
     ahead = np.sum(rel * dirs[:, None, :], axis=2) >= dist * np.cos(np.radians(60.0))
     in_way = ahead & (dist < reach[None, :])
-    any_in_way, blocker = _closest_in_way(pos, dirs, others, reach, float(np.cos(np.radians(60.0))))
+    any_in_way, blocker = closest_in_way(pos, dirs, others, reach, float(np.cos(np.radians(60.0))))
     np.testing.assert_array_equal(any_in_way, np.any(in_way, axis=1))
     np.testing.assert_array_equal(blocker, np.argmin(np.where(in_way, dist, np.inf), axis=1))
 

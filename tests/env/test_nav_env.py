@@ -169,3 +169,14 @@ def test_odometry_pose_source_measures_the_goal_from_its_estimate():
     # wheel odometry drifts a little: close to, but not exactly, the ground-truth distance
     assert obs["goal"][0] == pytest.approx(info["distance_to_goal_m"], abs=0.1)
     assert obs["goal"][0] != pytest.approx(info["distance_to_goal_m"], abs=1e-5)
+
+
+def test_lidar_observation_is_range_over_max_range_capped_at_one():
+    from simnav.env.nav_env import _scaled_ranges
+
+    ranges = np.concatenate([np.random.default_rng(0).uniform(0.0, 7.0, 300), [0.0, -0.0, 5.6, np.nan]])
+    ranges = ranges.astype(np.float32)
+    scale = np.float32(1.0 / 5.6)
+    expected = ranges * scale
+    expected[ranges <= 0] = 1.0
+    np.testing.assert_array_equal(_scaled_ranges(ranges, scale), np.minimum(expected, 1.0))

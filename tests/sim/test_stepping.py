@@ -1,0 +1,47 @@
+"""The stepping loop's bookkeeping: when it pauses and what is due, past poses, lidar noise."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simnav.robot import load_robot
+from simnav.sensors.noise import lidar_noise
+from simnav.sim import SimConfig, Simulator
+
+LIDAR_ONLY = ["sensors.camera.rate_hz=0.001"]
+
+
+def test_pauses_and_due_steps_follow_the_time_rules(box_room):
+    with Simulator(box_room, load_robot("giraff", ["sensors=[]"]), SimConfig(physics_dt_s=0.005)) as sim:
+        dt = sim.config.physics_dt_s
+        for t in [0.0, 0.005, 0.0300000004, 0.03000002, 0.1234, 1.0 / 30.0, 7.0 / 3.0, 12.345678901]:
+            pause, first = sim._steps_at(t)
+            assert pause == math.ceil(t / dt - 1e-6)
+            assert first == next(k for k in range(10**5) if t <= round(k * dt, 9) + 1e-9)
+
+
+def test_past_poses_are_the_poses_after_each_stretch(box_room):
+    with Simulator(box_room, load_robot("giraff", LIDAR_ONLY)) as sim:
+        poses = {0.0: sim.T_world_base}
+        for _ in range(30):
+            sim.step(0.4, 1.0)
+            poses[sim.time_s] = sim.T_world_base
+        for t, T in poses.items():
+            np.testing.assert_allclose(sim.T_world_base_at(t), T, atol=1e-12)
+            np.testing.assert_allclose(sim.T_world_base_at(t + 0.002), T, atol=1e-12)  # within a physics step
+
+
+@pytest.mark.parametrize(("std_m", "dropout"), [(0.01, 0.0), (0.0, 0.0), (0.05, 0.1), (0.0, 0.3)])
+def test_lidar_noise_is_numpys_gaussian_noise_and_dropouts(std_m, dropout):
+    ranges = np.concatenate([np.random.default_rng(2).uniform(0.0, 6.0, 500), [0.0, -0.0, 0.019, 5.6, np.inf]])
+    rng = np.random.default_rng(4)
+    valid = ranges > 0
+    noisy = ranges + rng.normal(0.0, std_m, ranges.shape) if std_m > 0 else ranges.copy()
+    if dropout > 0:
+        valid &= rng.random(ranges.shape) >= dropout
+    valid &= (noisy >= 0.02) & (noisy <= 5.6) & np.isfinite(noisy)
+    expected = np.where(valid, noisy, 0.0).astype(np.float32)
+    np.testing.assert_array_equal(lidar_noise(ranges, np.random.default_rng(4), std_m, dropout, 0.02, 5.6), expected)
