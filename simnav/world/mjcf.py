@@ -12,6 +12,7 @@ moving things (4); only robot-static and robot-moving contacts are generated.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -32,6 +33,10 @@ METAL_COLOR = (0.35, 0.36, 0.40)
 CHAIR_COLOR = (0.15, 0.17, 0.22)
 SHELF_COLOR = (0.70, 0.62, 0.50)
 DOOR_COLOR = (0.55, 0.35, 0.20)
+FLOOR_TEXTURE_M = 2.0  # side of the (repeating) floor texture, m
+FLOOR_TEXTURE_PX = 1024
+FLOOR_TILE_M = 0.5
+FLOOR_JOINT_M = 0.006
 PEDESTRIAN_HEIGHT_M = 1.75
 PEDESTRIAN_RADIUS_M = 0.22
 WANDERER_RADIUS_M = 0.28
@@ -150,16 +155,56 @@ def add_static_world(spec: mujoco.MjSpec, world: WorldSpec) -> int:
 def _add_floor(spec: mujoco.MjSpec, solids: list[Solid], margin_m: float = 5.0) -> None:
     """A thin box under the whole world for cameras (a finite box renders much faster than an infinite plane on
     a software renderer) and an infinite plane for rays."""
-    tex = spec.add_texture(name="floor_tex", type=mujoco.mjtTexture.mjTEXTURE_2D,
-                           builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256, height=256,
-                           rgb1=[0.55, 0.55, 0.52], rgb2=[0.45, 0.45, 0.43])
-    mat = spec.add_material(name="floor_mat", texrepeat=[0.5, 0.5], texuniform=True)
+    texture = floor_texture()
+    tex = spec.add_texture(name="floor_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, width=texture.shape[1],
+                           height=texture.shape[0], nchannel=3)
+    tex.data = texture.tobytes()
+    repeat = 1.0 / FLOOR_TEXTURE_M
+    mat = spec.add_material(name="floor_mat", texrepeat=[repeat, repeat], texuniform=True)
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
     reach = [max((abs(s.center_m[i]) + max(s.half_m[:2]) for s in solids), default=0.0) + margin_m for i in (0, 1)]
     spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_BOX, size=[reach[0], reach[1], 0.01],
                             pos=[0, 0, -0.01], material="floor_mat", group=GROUP_VISUAL, contype=0, conaffinity=0)
     spec.worldbody.add_geom(name="floor_rays", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
                             group=GROUP_COLLISION, contype=0, conaffinity=0)
+
+
+@functools.lru_cache(maxsize=2)
+def floor_texture(size_px: int = FLOOR_TEXTURE_PX, seed: int = 7) -> np.ndarray:
+    """(size_px, size_px, 3) uint8 floor texture covering FLOOR_TEXTURE_M x FLOOR_TEXTURE_M (it repeats): grey
+    FLOOR_TILE_M tiles, each a little lighter or darker, with dark joints and the mottled speckle of vinyl or
+    terrazzo flooring at 1-10 cm scales (what gives a camera texture on a real office floor). Deterministic."""
+    rng = np.random.default_rng(seed)
+    m_per_px = FLOOR_TEXTURE_M / size_px
+    tiles = round(FLOOR_TEXTURE_M / FLOOR_TILE_M)
+    # tile shades, then smooth mottling (value noise at several scales, wrapping at the texture's edge)
+    ij = (np.arange(size_px) * tiles) // size_px
+    grey = 0.52 + rng.uniform(-0.04, 0.04, (tiles, tiles))[ij[:, None], ij[None, :]]
+    for scale_m, amplitude in ((0.10, 0.05), (0.04, 0.05), (0.015, 0.04)):
+        cells = max(1, round(FLOOR_TEXTURE_M / scale_m))
+        coarse = rng.uniform(-amplitude, amplitude, (cells, cells))
+        grey = grey + _wrapped_upsample(coarse, size_px)
+    grey = grey + rng.uniform(-0.03, 0.03, (size_px, size_px))  # grain
+    # joints between the tiles
+    joint_px = max(1, round(FLOOR_JOINT_M / m_per_px))
+    on_joint = (np.arange(size_px) % (size_px // tiles)) < joint_px
+    grey[on_joint, :] = 0.30
+    grey[:, on_joint] = 0.30
+    rgb = np.clip(grey[..., None] * np.array([1.0, 1.0, 0.95]), 0.0, 1.0)
+    out = np.ascontiguousarray((255 * rgb).astype(np.uint8))
+    out.flags.writeable = False  # cached
+    return out
+
+
+def _wrapped_upsample(coarse: np.ndarray, size_px: int) -> np.ndarray:
+    """Bilinear upsampling of a (c, c) periodic grid to (size_px, size_px), wrapping at the edges."""
+    c = coarse.shape[0]
+    t = np.arange(size_px) * c / size_px
+    i0 = np.floor(t).astype(int) % c
+    i1 = (i0 + 1) % c
+    f = t - np.floor(t)
+    rows = coarse[i0] * (1 - f)[:, None] + coarse[i1] * f[:, None]
+    return rows[:, i0] * (1 - f)[None, :] + rows[:, i1] * f[None, :]
 
 
 def _add_collision_solid(spec: mujoco.MjSpec, solid: Solid, name: str) -> None:

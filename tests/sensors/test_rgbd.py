@@ -146,3 +146,21 @@ def test_the_camera_does_not_see_its_own_robot(backend):
         robot_ids = np.nonzero(sim.index.body_kind == "robot")[0]
         assert not np.isin(frame.body_id, robot_ids).any()
         assert (frame.depth_m > 0).mean() > 0.5
+
+
+def test_the_floor_shows_texture_to_the_colour_camera(box_room):
+    # mottled tiles: neighbouring floor pixels differ (a flat-shaded floor gives a mean step below 0.1 grey levels)
+    with Simulator(box_room, load_robot("giraff"), SimConfig(pedestrians=0, wanderers=0), seed=0) as sim:
+        frame = sim.capture_now("camera")
+    floor = frame.rgb.astype(float).mean(axis=2)[-60:, :]
+    assert np.abs(np.diff(floor, axis=1)).mean() > 1.0
+
+
+def test_floor_texture_is_deterministic_with_dark_joints():
+    from simnav.world.mjcf import FLOOR_TEXTURE_M, FLOOR_TILE_M, floor_texture
+
+    a, b = floor_texture(256, seed=3), floor_texture.__wrapped__(256, seed=3)
+    np.testing.assert_array_equal(a, b)
+    tile_px = round(256 * FLOOR_TILE_M / FLOOR_TEXTURE_M)
+    assert a[:, ::tile_px].mean() < 0.75 * a.mean()  # joints every tile
+    assert not a.flags.writeable
