@@ -76,7 +76,7 @@ from simnav.odometry import make_frame_odometry  # noqa: E402
 from simnav.sensors.readings import RGBDFrame  # noqa: E402
 
 CACHE = Path("runs/bench_rgbd_cache")
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 CAMERA = "camera"
 FRAME_RATE_HZ = 30.0
 DYNAMIC_KINDS = ("pedestrian", "wanderer")

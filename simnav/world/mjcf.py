@@ -37,6 +37,7 @@ FLOOR_TEXTURE_M = 2.0  # side of the (repeating) floor texture, m
 FLOOR_TEXTURE_PX = 1024
 FLOOR_TILE_M = 0.5
 FLOOR_JOINT_M = 0.006
+CLOTH_TEXTURE_M = 0.5  # side of the (repeating) clothing textures, m
 PEDESTRIAN_HEIGHT_M = 1.75
 PEDESTRIAN_RADIUS_M = 0.22
 WANDERER_RADIUS_M = 0.28
@@ -294,15 +295,53 @@ def add_door(spec: mujoco.MjSpec, door: Door, name: str) -> None:
 
 def add_pedestrian(spec: mujoco.MjSpec, name: str, shirt: tuple[float, float, float]) -> None:
     """A person as a mocap body: legs, torso and head (about 1.75 m tall, 0.22 m radius)."""
+    trousers, shirt_mat = _clothing(spec, name, shirt)
     body = spec.worldbody.add_body(name=name, mocap=True, pos=[0.0, 0.0, -10.0])
     common = dict(group=GROUP_MOVING, contype=CONTYPE_MOVING, conaffinity=0)
     body.add_geom(name=f"{name}_legs", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.1, 0.15, 0.42],
-                  pos=[0, 0, 0.42], rgba=[0.15, 0.17, 0.3, 1], **common)
+                  pos=[0, 0, 0.42], material=trousers, **common)
     # shoulders across y: capsule radius + half-length = the body radius the crowd model keeps clear
     body.add_geom(name=f"{name}_torso", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.12, PEDESTRIAN_RADIUS_M - 0.12, 0],
-                  pos=[0, 0, 1.15], quat=[0.7071068, 0.7071068, 0, 0], rgba=[*shirt, 1], **common)
+                  pos=[0, 0, 1.15], quat=[0.7071068, 0.7071068, 0, 0], material=shirt_mat, **common)
     body.add_geom(name=f"{name}_head", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.11, 0, 0],
                   pos=[0, 0, PEDESTRIAN_HEIGHT_M - 0.11], rgba=[0.85, 0.68, 0.55, 1], **common)
+
+
+def _clothing(spec: mujoco.MjSpec, name: str, shirt: tuple[float, float, float]) -> tuple[str, str]:
+    """Materials of a person's trousers (denim-like mottle, shared) and shirt (a check pattern in the shirt's
+    colour); the textures are added to ``spec`` once."""
+    if spec.texture("cloth_tex") is None:
+        for tex_name, pattern in (("cloth_tex", cloth_texture("check")), ("denim_tex", cloth_texture("denim"))):
+            tex = spec.add_texture(name=tex_name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=pattern.shape[1],
+                                   height=pattern.shape[0], nchannel=3)
+            tex.data = pattern.tobytes()
+        repeat = 1.0 / CLOTH_TEXTURE_M
+        trousers = spec.add_material(name="trousers_mat", texrepeat=[repeat, repeat], texuniform=True,
+                                     rgba=[0.22, 0.25, 0.42, 1.0])
+        trousers.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "denim_tex"
+    repeat = 1.0 / CLOTH_TEXTURE_M
+    mat = spec.add_material(name=f"{name}_shirt_mat", texrepeat=[repeat, repeat], texuniform=True, rgba=[*shirt, 1.0])
+    mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "cloth_tex"
+    return "trousers_mat", mat.name
+
+
+@functools.lru_cache(maxsize=4)
+def cloth_texture(kind: str, size_px: int = 256, seed: int = 11) -> np.ndarray:
+    """(size_px, size_px, 3) uint8 grey fabric pattern covering CLOTH_TEXTURE_M x CLOTH_TEXTURE_M (it repeats),
+    tinted by the material's colour: ``"check"`` (a shirt: stripes of several widths across both directions, as
+    a plaid) or ``"denim"`` (trousers: mottle and grain). Deterministic."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(size_px) / size_px  # texture coordinate, 0..1 over CLOTH_TEXTURE_M
+    if kind == "check":
+        stripes = 0.5 + 0.5 * np.sign(np.sin(2 * np.pi * 6 * t)) * (np.sin(2 * np.pi * 2 * t) > -0.3)
+        grey = 0.55 + 0.2 * (stripes[:, None] + stripes[None, :]) + rng.uniform(-0.05, 0.05, (size_px, size_px))
+    else:
+        grey = 0.8 + _wrapped_upsample(rng.uniform(-0.12, 0.12, (16, 16)), size_px)
+        grey = grey + _wrapped_upsample(rng.uniform(-0.08, 0.08, (48, 48)), size_px)
+        grey = grey + rng.uniform(-0.06, 0.06, (size_px, size_px))
+    out = np.ascontiguousarray((255 * np.clip(np.repeat(grey[..., None], 3, axis=2), 0.0, 1.0)).astype(np.uint8))
+    out.flags.writeable = False  # cached
+    return out
 
 
 def add_wanderer(spec: mujoco.MjSpec, name: str) -> None:
