@@ -46,6 +46,22 @@ def _pair_distances(points: np.ndarray) -> np.ndarray:
     return d + np.eye(len(points)) * 1e9
 
 
+# two 5 x 4 m rooms joined by a 1 m doorway in a 12 cm wall at x = 5, and a roadmap through it
+_T = 0.06
+DOORWAY_WALLS = np.array(
+    [
+        [[0, 0], [10, 0]], [[10, 0], [10, 4]], [[10, 4], [0, 4]], [[0, 4], [0, 0]],
+        [[5 - _T, 0], [5 - _T, 1.5]], [[5 - _T, 1.5], [5 + _T, 1.5]], [[5 + _T, 1.5], [5 + _T, 0]],
+        [[5 - _T, 4], [5 - _T, 2.5]], [[5 - _T, 2.5], [5 + _T, 2.5]], [[5 + _T, 2.5], [5 + _T, 4]],
+    ],
+    dtype=float,
+)
+DOORWAY_NODES = np.array([[1.5, 1], [1.5, 3], [3.5, 1], [3.5, 3], [4.2, 2], [5, 2], [5.8, 2], [6.5, 1], [6.5, 3],
+                          [8.5, 1], [8.5, 3]], dtype=float)
+DOORWAY_EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (2, 4), (3, 4), (4, 5), (5, 6), (6, 7), (6, 8), (7, 8), (7, 9),
+                 (8, 10), (9, 10)]
+
+
 def test_lone_pedestrian_reaches_desired_speed_and_goal() -> None:
     roadmap = RoadmapGraph(np.array([[0.0, 0.0], [15.0, 0.0]]), [(0, 1)])
     crowd = Crowd(roadmap, np.zeros((0, 2, 2)), 1, np.random.default_rng(1))
@@ -155,19 +171,7 @@ def test_spawns_along_edges_when_nodes_are_crowded() -> None:
 
 
 def test_pedestrians_cross_a_one_metre_doorway_both_ways() -> None:
-    t = 0.06  # two 5 x 4 m rooms joined by a 1 m doorway in a 12 cm wall at x = 5
-    walls = np.array(
-        [
-            [[0, 0], [10, 0]], [[10, 0], [10, 4]], [[10, 4], [0, 4]], [[0, 4], [0, 0]],
-            [[5 - t, 0], [5 - t, 1.5]], [[5 - t, 1.5], [5 + t, 1.5]], [[5 + t, 1.5], [5 + t, 0]],
-            [[5 - t, 4], [5 - t, 2.5]], [[5 - t, 2.5], [5 + t, 2.5]], [[5 + t, 2.5], [5 + t, 4]],
-        ],
-        dtype=float,
-    )
-    nodes = np.array([[1.5, 1], [1.5, 3], [3.5, 1], [3.5, 3], [4.2, 2], [5, 2], [5.8, 2], [6.5, 1], [6.5, 3],
-                      [8.5, 1], [8.5, 3]], dtype=float)
-    edges = [(0, 1), (0, 2), (1, 3), (2, 3), (2, 4), (3, 4), (4, 5), (5, 6), (6, 7), (6, 8), (7, 8), (7, 9),
-             (8, 10), (9, 10)]
+    walls, nodes, edges = DOORWAY_WALLS, DOORWAY_NODES, DOORWAY_EDGES
     crowd = Crowd(RoadmapGraph(nodes, edges), walls, 8, np.random.default_rng(0))
     x_min = crowd.positions_xy[:, 0].copy()
     x_max = x_min.copy()

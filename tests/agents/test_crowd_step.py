@@ -19,21 +19,9 @@ from simnav.agents.social_force import (
     resolve_overlaps_pairs_reference,
     social_force_pairs_reference,
 )
-
-# two 5 x 4 m rooms joined by a 1 m doorway (as in test_crowd), a roadmap through it
-_T = 0.06
-WALLS = np.array(
-    [
-        [[0, 0], [10, 0]], [[10, 0], [10, 4]], [[10, 4], [0, 4]], [[0, 4], [0, 0]],
-        [[5 - _T, 0], [5 - _T, 1.5]], [[5 - _T, 1.5], [5 + _T, 1.5]], [[5 + _T, 1.5], [5 + _T, 0]],
-        [[5 - _T, 4], [5 - _T, 2.5]], [[5 - _T, 2.5], [5 + _T, 2.5]], [[5 + _T, 2.5], [5 + _T, 4]],
-    ],
-    dtype=float,
-)
-NODES = np.array([[1.5, 1], [1.5, 3], [3.5, 1], [3.5, 3], [4.2, 2], [5, 2], [5.8, 2], [6.5, 1], [6.5, 3],
-                  [8.5, 1], [8.5, 3]], dtype=float)
-EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (2, 4), (3, 4), (4, 5), (5, 6), (6, 7), (6, 8), (7, 8), (7, 9), (8, 10),
-         (9, 10)]
+from tests.agents.test_crowd import DOORWAY_EDGES as EDGES
+from tests.agents.test_crowd import DOORWAY_NODES as NODES
+from tests.agents.test_crowd import DOORWAY_WALLS as WALLS
 
 
 class ReferenceCrowd(Crowd):
