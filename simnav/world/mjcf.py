@@ -310,16 +310,15 @@ def add_pedestrian(spec: mujoco.MjSpec, name: str, shirt: tuple[float, float, fl
 def _clothing(spec: mujoco.MjSpec, name: str, shirt: tuple[float, float, float]) -> tuple[str, str]:
     """Materials of a person's trousers (denim-like mottle, shared) and shirt (a check pattern in the shirt's
     colour); the textures are added to ``spec`` once."""
+    repeat = 1.0 / CLOTH_TEXTURE_M
     if spec.texture("cloth_tex") is None:
         for tex_name, pattern in (("cloth_tex", cloth_texture("check")), ("denim_tex", cloth_texture("denim"))):
             tex = spec.add_texture(name=tex_name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=pattern.shape[1],
                                    height=pattern.shape[0], nchannel=3)
             tex.data = pattern.tobytes()
-        repeat = 1.0 / CLOTH_TEXTURE_M
         trousers = spec.add_material(name="trousers_mat", texrepeat=[repeat, repeat], texuniform=True,
                                      rgba=[0.22, 0.25, 0.42, 1.0])
         trousers.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "denim_tex"
-    repeat = 1.0 / CLOTH_TEXTURE_M
     mat = spec.add_material(name=f"{name}_shirt_mat", texrepeat=[repeat, repeat], texuniform=True, rgba=[*shirt, 1.0])
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "cloth_tex"
     return "trousers_mat", mat.name
