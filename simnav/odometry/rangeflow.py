@@ -22,28 +22,29 @@ Warping (3.73–3.75) projects the *segments* between consecutive beams of the w
 (z-buffer), as SRF-Odometry does; the keyscan of the multi-scan formulation keeps the farthest instead (§3.G.5).
 
 The per-beam work (pyramid, gradients, warping, constraints and pre-weights, IRLS with its normal equations, the
-motion filter) runs in Numba kernels (``@njit(cache=True)``: compiled on first use, then loaded from
-``__pycache__``). Written with numpy, these stages take about a thousand small array calls per scan, 2–4 ms for
-1080 beams against a budget of 1 ms (``scripts/bench_scan_odometry_runtime.py``). Public functions keep their
-numpy signatures and wrap the kernels (``_*_kernel``, ``_*_at`` for one beam).
+motion filter) runs in Numba kernels (``@njit(cache=True, error_model="numpy")``: compiled on first use, then
+loaded from ``__pycache__``). Written with numpy, these stages take about a thousand small array calls per scan,
+2–4 ms for 1080 beams against a budget of 1 ms (``scripts/bench_scan_odometry_runtime.py``). Public functions keep
+their numpy signatures and wrap the kernels (``_*_kernel``, ``_*_at`` for one beam). Helpers called per beam take
+scalars: an array argument costs two reference-count updates per call, which tripled the pre-weighting time.
+The loop over levels and warps runs in one kernel per scan too (:mod:`simnav.odometry.rangeflow_fused`).
 """
 
 from __future__ import annotations
 
 import math
-import time
-from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from functools import cached_property
-from typing import NamedTuple, TypeVar
+from typing import TYPE_CHECKING, NamedTuple, TypeVar
 
 import numpy as np
 from numba import njit
 
 from simnav.errors import ConfigError
-from simnav.odometry.base import OdometryEstimate, PlanarScan, planar_scan
-from simnav.sensors.readings import LaserScan
+
+if TYPE_CHECKING:
+    from simnav.odometry.rangeflow_fused import PackedGeometry
 
 TWO_PI = 2.0 * math.pi
 GAUSS5 = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
@@ -320,7 +321,7 @@ def gated_average(ranges_m: np.ndarray, window: np.ndarray, gate_m: float) -> np
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gated_average_kernel(r: np.ndarray, window: np.ndarray, gate_m: float, out: np.ndarray) -> None:
     """Compiled :func:`gated_average`: writes the (m,) smoothed ranges into ``out``."""
     n = len(r)
@@ -385,7 +386,7 @@ def range_gradient(r_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray,
     return grad, ok
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _range_gradient_kernel(r: np.ndarray, x: np.ndarray, y: np.ndarray, prev: np.ndarray, nxt: np.ndarray,
                            has_prev: np.ndarray, has_next: np.ndarray, gap_next: np.ndarray, grad: np.ndarray,
                            ok: np.ndarray) -> None:
@@ -426,25 +427,31 @@ def neighbour_difference(v: np.ndarray, ok: np.ndarray, geom: LevelGeometry) -> 
     return out
 
 
-@njit(cache=True, inline="always")
-def _neighbour_difference_at(v: np.ndarray, ok: np.ndarray, i: int, p: int, q: int, has_prev: bool,
-                             has_next: bool) -> float:
-    """:func:`neighbour_difference` of beam ``i`` with previous ``p`` and next ``q``."""
-    vb = ok[i] and has_prev and ok[p]
-    vf = ok[i] and has_next and ok[q]
-    if vb and vf:
-        return 0.5 * (v[q] - v[p])
-    if vb:
-        return v[i] - v[p]
-    return v[q] - v[i] if vf else 0.0
+@njit(cache=True, error_model="numpy", inline="always")
+def _neighbour_difference_at(v_prev: float, v: float, v_next: float, back: bool, forward: bool) -> float:
+    """:func:`neighbour_difference` of one beam from its value, its neighbours' values and whether the backward
+    and forward neighbours count (scalars only: array arguments would cost reference counting per beam)."""
+    if back and forward:
+        return 0.5 * (v_next - v_prev)
+    if back:
+        return v - v_prev
+    return v_next - v if forward else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
+def _neighbours_ok(ok: bool, ok_prev: bool, ok_next: bool, has_prev: bool, has_next: bool) -> tuple[bool, bool]:
+    """Whether a beam's backward and forward neighbours take part in :func:`neighbour_difference`."""
+    return ok and has_prev and ok_prev, ok and has_next and ok_next
+
+
+@njit(cache=True, error_model="numpy")
 def _neighbour_difference_kernel(v: np.ndarray, ok: np.ndarray, prev: np.ndarray, nxt: np.ndarray,
                                  has_prev: np.ndarray, has_next: np.ndarray, out: np.ndarray) -> None:
     """Compiled :func:`neighbour_difference`: writes the (n,) differences into ``out``."""
     for i in range(len(v)):
-        out[i] = _neighbour_difference_at(v, ok, i, prev[i], nxt[i], has_prev[i], has_next[i])
+        p, q = prev[i], nxt[i]
+        back, forward = _neighbours_ok(ok[i], ok[p], ok[q], has_prev[i], has_next[i])
+        out[i] = _neighbour_difference_at(v[p], v[i], v[q], back, forward)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -468,7 +475,7 @@ def grid_index(phi_rad: np.ndarray, geom: LevelGeometry) -> np.ndarray:
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_angles: np.ndarray,
                    index_values: np.ndarray) -> float:
     """:func:`grid_index` of one direction; ``step`` is the uniform spacing or 0."""
@@ -476,11 +483,7 @@ def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_ang
     if offset < 0.0:
         offset += TWO_PI
     if step > 0:
-        u = offset / step
-        if circular:
-            return u
-        last = index_values[-1]  # n - 1
-        return min(u, last) if u <= last + 1e-9 else np.nan
+        return _uniform_index(offset, step, circular, index_values[-1])
     x = a0 + offset
     if not index_angles[0] <= x <= index_angles[-1]:
         return np.nan
@@ -498,7 +501,17 @@ def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_ang
     return slope * (x - index_angles[lo]) + index_values[lo]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
+def _uniform_index(offset: float, step: float, circular: bool, last: float) -> float:
+    """Fractional index of a direction ``offset`` rad past the first beam of a uniform grid (``step`` rad apart,
+    last index ``last``); NaN beyond the last beam of a non-circular grid."""
+    u = offset / step
+    if circular:
+        return u
+    return min(u, last) if u <= last + 1e-9 else np.nan
+
+
+@njit(cache=True, error_model="numpy")
 def _grid_index_kernel(phi: np.ndarray, a0: float, step: float, circular: bool, index_angles: np.ndarray,
                        index_values: np.ndarray, out: np.ndarray) -> None:
     """Compiled :func:`grid_index`: writes the (k,) fractional indices into ``out``."""
@@ -532,7 +545,7 @@ def warp_scan(ranges_m: np.ndarray, src: LevelGeometry, T_dst_src: np.ndarray, d
                         keep == "farthest")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _warp_kernel(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, seg_a: np.ndarray,
                  seg_b: np.ndarray, T: np.ndarray, dst_cos: np.ndarray, dst_sin: np.ndarray, a0: float, step: float,
                  circular: bool, index_angles: np.ndarray, index_values: np.ndarray, farthest: bool) -> np.ndarray:
@@ -543,7 +556,40 @@ def _warp_kernel(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, s
     return _zbuffer(xw, yw, rho, u, seg_a, seg_b, dst_cos, dst_sin, circular, farthest)
 
 
-@njit(cache=True)
+# Minimax rational approximation of atan on [0, 0.66] (coefficients of the Cephes library's atan).
+_ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
+           -1.228866684490136173410e2, -6.485021904942025371773e1)
+_ATAN_Q = (2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
+           4.853903996359136964868e2, 1.945506571482613964425e2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def atan2_vectorisable(y: float, x: float) -> float:
+    """``math.atan2(y, x)`` within 2 ulp for finite inputs, without branches a loop could not vectorise.
+
+    The libm call is not vectorised and took most of the time of moving a scan's points (about 20 ns per beam);
+    this form runs several beams per instruction. The ratio ``min / max`` of ``|x|, |y|`` lies in [0, 1]; above
+    0.66 it is mapped to ``(t - 1) / (t + 1)`` (adding pi/4), then octant and quadrant are restored by selects.
+    Signed zeros of ``y`` are kept (``atan2(-0.0, -1) = -pi``); ``atan2(0, 0) = 0``.
+    """
+    p0, p1, p2, p3, p4 = _ATAN_P
+    q0, q1, q2, q3, q4 = _ATAN_Q
+    ax, ay = abs(x), abs(y)
+    hi, lo = max(ax, ay), min(ax, ay)
+    t = lo / hi if hi != 0.0 else 0.0
+    big = t > 0.66
+    t = (t - 1.0) / (t + 1.0) if big else t
+    z = t * t
+    num = (((p0 * z + p1) * z + p2) * z + p3) * z + p4
+    den = ((((z + q0) * z + q1) * z + q2) * z + q3) * z + q4
+    a = t + t * z * num / den
+    a = a + 0.25 * math.pi if big else a
+    a = 0.5 * math.pi - a if ay > ax else a
+    a = math.pi - a if x < 0.0 else a
+    return math.copysign(a, y)
+
+
+@njit(cache=True, error_model="numpy")
 def _moved_points(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, T: np.ndarray, a0: float,
                   step: float, circular: bool, index_angles: np.ndarray,
                   index_values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -557,18 +603,29 @@ def _moved_points(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, 
         yw[i] = T[1, 0] * x + T[1, 1] * y + T[1, 2]
         rho[i] = math.sqrt(xw[i] * xw[i] + yw[i] * yw[i])
     for i in range(m):
-        u[i] = math.atan2(yw[i], xw[i])
-    for i in range(m):
-        u[i] = _grid_index_at(u[i], a0, step, circular, index_angles, index_values) if ranges[i] > 0 else np.nan
+        u[i] = atan2_vectorisable(yw[i], xw[i])
+    last = index_values[-1]
+    for i in range(m):  # the uniform grid without array arguments: no reference counting per beam
+        if not ranges[i] > 0:
+            u[i] = np.nan
+        elif step > 0:
+            u[i] = _uniform_index(u[i] - a0 + (TWO_PI if u[i] < a0 else 0.0), step, circular, last)
+        else:
+            u[i] = _grid_index_at(u[i], a0, step, circular, index_angles, index_values)
     return xw, yw, rho, u
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _zbuffer(xw: np.ndarray, yw: np.ndarray, rho: np.ndarray, u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray,
              dst_cos: np.ndarray, dst_sin: np.ndarray, circular: bool, farthest: bool) -> np.ndarray:
     """(n,) target ranges from moved points (:func:`_moved_points`): each segment between neighbouring valid
     points fills the target beams it spans, points without a valid neighbour the nearest beam; each beam keeps
-    the closest (or farthest) range, 0 where nothing projects."""
+    the closest (or farthest) range, 0 where nothing projects.
+
+    A segment from point a to point b gives every target beam k between the fractional indices ``u[a]`` and
+    ``u[b]`` the exact range ``r = (Pa x D) / (e x D)`` (D the beam direction, e = b - a), clipped to the end
+    ranges. The loops are written out: helpers taking arrays would cost reference counting per segment.
+    """
     n, m = len(dst_cos), len(u)
     out = np.zeros(n) if farthest else np.full(n, np.inf)
     paired = np.zeros(m, dtype=np.bool_)
@@ -581,11 +638,22 @@ def _zbuffer(xw: np.ndarray, yw: np.ndarray, rho: np.ndarray, u: np.ndarray, seg
             continue
         paired[a] = True
         paired[b] = True
-        _project_segment(out, xw[a], yw[a], rho[a], xw[b], yw[b], rho[b], ua, ub, dst_cos, dst_sin, circular,
-                         farthest)
+        k0, k1 = math.ceil(min(ua, ub) - 1e-9), math.floor(max(ua, ub) + 1e-9)
+        dx, dy = xw[b] - xw[a], yw[b] - yw[a]
+        num = xw[a] * dy - yw[a] * dx
+        r_lo, r_hi = min(rho[a], rho[b]), max(rho[a], rho[b])
+        for kk in range(k0, k1 + 1):
+            k = kk % n if circular else kk
+            if 0 <= k < n:
+                den = dst_cos[k] * dy - dst_sin[k] * dx
+                r = min(max(num / den if abs(den) > 1e-12 else r_lo, r_lo), r_hi)
+                if _wins(r, out[k], farthest):
+                    out[k] = r
     for i in range(m):
         if not paired[i] and np.isfinite(u[i]):
-            _keep(out, int(np.rint(u[i])) % n, rho[i], farthest)
+            k = int(np.rint(u[i])) % n
+            if _wins(rho[i], out[k], farthest):
+                out[k] = rho[i]
     if not farthest:
         for k in range(n):
             if out[k] == np.inf:
@@ -593,29 +661,10 @@ def _zbuffer(xw: np.ndarray, yw: np.ndarray, rho: np.ndarray, u: np.ndarray, seg
     return out
 
 
-@njit(cache=True, inline="always")
-def _project_segment(out: np.ndarray, xa: float, ya: float, ra: float, xb: float, yb: float, rb: float, ua: float,
-                     ub: float, dst_cos: np.ndarray, dst_sin: np.ndarray, circular: bool, farthest: bool) -> None:
-    """Exact range ``r = (Pa x D) / (e x D)`` (clipped to the end ranges ``ra``, ``rb``) of every target beam
-    between fractional indices ``ua`` and ``ub`` of the segment from point a to point b, z-buffered into ``out``."""
-    n = len(out)
-    k0, k1 = math.ceil(min(ua, ub) - 1e-9), math.floor(max(ua, ub) + 1e-9)
-    dx, dy = xb - xa, yb - ya
-    num = xa * dy - ya * dx
-    r_lo, r_hi = min(ra, rb), max(ra, rb)
-    for kk in range(k0, k1 + 1):
-        k = kk % n if circular else kk
-        if 0 <= k < n:
-            den = dst_cos[k] * dy - dst_sin[k] * dx
-            r = num / den if abs(den) > 1e-12 else r_lo
-            _keep(out, k, min(max(r, r_lo), r_hi), farthest)
-
-
-@njit(cache=True, inline="always")
-def _keep(out: np.ndarray, k: int, r: float, farthest: bool) -> None:
-    """Z-buffer: beam ``k`` of ``out`` keeps the closer (or farther) of its range and ``r``."""
-    if (r > out[k]) if farthest else (r < out[k]):
-        out[k] = r
+@njit(cache=True, error_model="numpy", inline="always")
+def _wins(r: float, current: float, farthest: bool) -> bool:
+    """Z-buffer test: whether range ``r`` replaces a beam's ``current`` one (closer, or farther for keyscans)."""
+    return r > current if farthest else r < current
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -670,7 +719,7 @@ def flow_terms(r_ref_m: np.ndarray, r_new_m: np.ndarray, geom: LevelGeometry, sy
     return FlowTerms(rows, A, rt, grad * geom.spacing_rad, ok, valid, mean_r)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _flow_terms_kernel(r_ref: np.ndarray, r_new: np.ndarray, cos: np.ndarray, sin: np.ndarray, prev: np.ndarray,
                        nxt: np.ndarray, has_prev: np.ndarray, has_next: np.ndarray, gap_next: np.ndarray,
                        symmetric: bool, grad: np.ndarray,
@@ -780,7 +829,7 @@ def _preweights(terms: FlowTerms, geom: LevelGeometry, model: Preweights) -> np.
                               geom.next, geom.has_prev, geom.has_next, *model.args)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _preweights_kernel(rows: np.ndarray, grad_beam: np.ndarray, grad_ok: np.ndarray, rt: np.ndarray,
                        valid: np.ndarray, prev: np.ndarray, nxt: np.ndarray, has_prev: np.ndarray,
                        has_next: np.ndarray, floor: float, k_first: float, k_second: float, k_rt_a: float,
@@ -789,11 +838,13 @@ def _preweights_kernel(rows: np.ndarray, grad_beam: np.ndarray, grad_ok: np.ndar
     w = np.empty(len(rows))
     for j in range(len(rows)):
         i = rows[j]
-        p, q, hp, hn = prev[i], nxt[i], has_prev[i], has_next[i]
-        g_aa = _neighbour_difference_at(grad_beam, grad_ok, i, p, q, hp, hn)
+        p, q = prev[i], nxt[i]
+        back, forward = _neighbours_ok(grad_ok[i], grad_ok[p], grad_ok[q], has_prev[i], has_next[i])
+        g_aa = _neighbour_difference_at(grad_beam[p], grad_beam[i], grad_beam[q], back, forward)
         var = floor + k_first * (grad_beam[i] ** 2 + rt[i] ** 2) + k_second * g_aa**2
         if k_rt_a != 0.0:
-            var += k_rt_a * _neighbour_difference_at(rt, valid, i, p, q, hp, hn) ** 2
+            back, forward = _neighbours_ok(valid[i], valid[p], valid[q], has_prev[i], has_next[i])
+            var += k_rt_a * _neighbour_difference_at(rt[p], rt[i], rt[q], back, forward) ** 2
         w[j] = 1.0 / math.sqrt(var)
     if normalise and len(w):
         w /= w.max()
@@ -839,7 +890,7 @@ def weighted_constraints(r_ref_m: np.ndarray, r_new_m: np.ndarray, geom: LevelGe
     return WeightedConstraints(A, b, info if information else None, mean_r, len(b))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _weighted_constraints_kernel(r_ref: np.ndarray, r_new: np.ndarray, cos: np.ndarray, sin: np.ndarray,
                                  prev: np.ndarray, nxt: np.ndarray, has_prev: np.ndarray, has_next: np.ndarray,
                                  gap_next: np.ndarray, spacing: np.ndarray, symmetric: bool,
@@ -891,7 +942,7 @@ class Solution:
     information: np.ndarray | None = None
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _weighted_solve(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted least squares of ``A xi = b`` with ``At = A^T`` ((3, m), C order: each pass is unit-stride),
     (m,) ``b`` and (m,) weights (empty = all 1).
@@ -907,7 +958,7 @@ def _weighted_solve(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.nd
     return xi, r, H
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})  # reassociation lets the sums vectorise
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})  # reassociation lets the sums vectorise
 def _normal_equations(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(A^T W A, A^T W b)`` ((3, 3), (3,)) of ``A xi = b`` (``At = A^T``) with (m,) weights (empty = all 1)."""
     h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = 0.0
@@ -931,7 +982,7 @@ def _normal_equations(At: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.
     return H, np.array([g0, g1, g2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_normal(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Minimum-norm solution of ``H xi = g`` for a symmetric PSD (3, 3) ``H``.
 
@@ -953,7 +1004,7 @@ def _solve_normal(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     return xi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eigh3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigen-decomposition of a symmetric (3, 3) matrix by cyclic Jacobi rotations (as ``np.linalg.eigh``).
 
@@ -987,7 +1038,7 @@ def eigh3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mu, W
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _jacobi_rotate(a: np.ndarray, V: np.ndarray, p: int, q: int) -> None:
     """Zeroes ``a[p, q]`` by the rotation ``a <- J^T a J``, ``V <- V J`` (symmetric ``a``)."""
     theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
@@ -1024,7 +1075,7 @@ def weighted_covariance(H: np.ndarray, r: np.ndarray, w: np.ndarray | None) -> t
     return _covariance_eig(_f64(H), _f64(r), np.empty(0) if w is None else _f64(w))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _covariance_eig(H: np.ndarray, r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled :func:`weighted_covariance` (empty ``w`` = all 1); NaN when ``H`` is not finite."""
     s2, n_eff = 0.0, 0
@@ -1048,7 +1099,7 @@ SolveResult = tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndar
 """``(xi, covariance, normal, rows, eigenvalues, eigenvectors)`` of a solve, as the compiled solvers return it."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_result(xi: np.ndarray, r: np.ndarray, H: np.ndarray, w: np.ndarray) -> SolveResult:
     """Covariance of a (weighted, empty ``w`` = all 1) solve with residuals ``r``, packed as a SolveResult."""
     lam, V = _covariance_eig(H, r, w)
@@ -1066,7 +1117,7 @@ def _solution(result: SolveResult, lever_m: float) -> Solution:
     return Solution(xi, cov, H, rows, lever_m, (lam, V))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cauchy_weights(r: np.ndarray, k: float) -> np.ndarray:
     """IRLS weights of the Cauchy M-estimator (3.68): ``1 / (1 + (r / k)²)``."""
     return 1.0 / (1.0 + (r / k) ** 2)
@@ -1090,7 +1141,7 @@ def irls_cauchy(A: np.ndarray, b: np.ndarray, iterations: int, k_ratio: float, l
     return _solution(_irls_cauchy_kernel(_f64(A), _f64(b), int(iterations), float(k_ratio)), lever_m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _irls_cauchy_kernel(A: np.ndarray, b: np.ndarray, iterations: int, k_ratio: float) -> SolveResult:
     """Compiled :func:`irls_cauchy`."""
     At, w = np.ascontiguousarray(A.T), np.empty(0)
@@ -1104,26 +1155,26 @@ def _irls_cauchy_kernel(A: np.ndarray, b: np.ndarray, iterations: int, k_ratio: 
     return _solve_result(xi, r, H, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def truncated_parabola_weights(r: np.ndarray, c: float) -> np.ndarray:
     """IRLS weights of the smooth truncated parabola (3.100): ``1 - (r / c)²`` inside ``|r| <= c``, else 0."""
     return np.maximum(1.0 - (r / c) ** 2, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def truncated_parabola_energy(r: np.ndarray, c: float) -> float:
     """Cost (3.95): ``sum r²/2 (1 - r²/(2c²))`` inside ``|r| <= c``, ``c²/4`` outside."""
     q = np.minimum((r / c) ** 2, 1.0)
     return 0.25 * c * c * np.sum(q * (2.0 - q))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _upper_median(v: np.ndarray) -> float:
     """Element of rank ``len(v) // 2`` (the median for odd lengths, the upper median otherwise)."""
     return _select(v.copy(), len(v) // 2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _select(a: np.ndarray, k: int) -> float:
     """Element of rank ``k`` of ``a`` (quickselect; reorders ``a``)."""
     lo, hi = 0, len(a) - 1
@@ -1148,7 +1199,7 @@ def _select(a: np.ndarray, k: int) -> float:
     return a[k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def median_absolute_deviation(r: np.ndarray) -> float:
     """``median(|r - median(r)|)`` of a non-empty array (upper medians)."""
     return _upper_median(np.abs(r - _upper_median(r)))
@@ -1176,7 +1227,7 @@ def irls_truncated_parabola(A: np.ndarray, b: np.ndarray, max_iterations: int, m
                                                      float(min_decrease)), lever_m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _irls_truncated_parabola_kernel(A: np.ndarray, b: np.ndarray, max_iterations: int, mad_factor: float,
                                     min_decrease: float) -> SolveResult:
     """Compiled :func:`irls_truncated_parabola`."""
@@ -1199,7 +1250,7 @@ def _irls_truncated_parabola_kernel(A: np.ndarray, b: np.ndarray, max_iterations
     return _solve_result(xi, r, H, w)
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})  # reassociation lets the sum vectorise
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})  # reassociation lets the sum vectorise
 def _truncated_parabola_pass(r: np.ndarray, c: float, w: np.ndarray) -> tuple[float, int]:
     """One pass over the residuals: writes :func:`truncated_parabola_weights` into ``w`` and returns the
     :func:`truncated_parabola_energy` and the number of non-zero weights."""
@@ -1218,7 +1269,7 @@ def _truncated_parabola_pass(r: np.ndarray, c: float, w: np.ndarray) -> tuple[fl
 # Motion filter, degeneracy, SE(2) helpers
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_filter(xi_m: np.ndarray, covariance_eig: tuple[np.ndarray, np.ndarray], xi_prior: np.ndarray,
                   k_l: float, k_e: float) -> np.ndarray:
     """Low-pass filter of a level's solution in the eigenspace of its covariance (3.77 / 3.106).
@@ -1247,7 +1298,7 @@ def motion_filter(xi_m: np.ndarray, covariance_eig: tuple[np.ndarray, np.ndarray
     return xi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def unit_information(A: np.ndarray) -> np.ndarray:
     """Geometric information of range-flow constraints: ``sum u u^T`` with ``u = a / |(a_x, a_y)|``.
 
@@ -1304,7 +1355,7 @@ def weakest_direction(normal: np.ndarray, lever_m: float) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def se2_exp(xi: np.ndarray) -> np.ndarray:
     """(3, 3) ``exp(hat(xi))`` of a (3,) twist (scalar fast path of :func:`simnav.geometry.se2.exp`)."""
     vx, vy, w = xi[0], xi[1], xi[2]
@@ -1316,7 +1367,7 @@ def se2_exp(xi: np.ndarray) -> np.ndarray:
     return _pose(c, s, a * vx - h * vy, h * vx + a * vy)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def se2_log(T: np.ndarray) -> np.ndarray:
     """(3,) twist of a (3, 3) pose (scalar fast path of :func:`simnav.geometry.se2.log`)."""
     w = math.atan2(T[1, 0], T[0, 0])
@@ -1326,7 +1377,7 @@ def se2_log(T: np.ndarray) -> np.ndarray:
     return np.array([a * tx + half * ty, -half * tx + a * ty, w])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def se2_inverse(T: np.ndarray) -> np.ndarray:
     """(3, 3) inverse of a (3, 3) pose (fast path of :func:`simnav.geometry.se2.inverse`)."""
     Ti = np.zeros((3, 3))
@@ -1337,7 +1388,7 @@ def se2_inverse(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose(c: float, s: float, x: float, y: float) -> np.ndarray:
     """(3, 3) pose with rotation ``[[c, -s], [s, c]]`` and translation ``(x, y)``."""
     T = np.zeros((3, 3))
@@ -1347,7 +1398,7 @@ def _pose(c: float, s: float, x: float, y: float) -> np.ndarray:
     return T
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _compose(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(3, 3) product ``A @ B`` of two poses."""
     C = np.zeros((3, 3))
@@ -1380,6 +1431,8 @@ class ScanFrame:
         valid_beams: valid beams of the raw scan.
         beams: beams of the raw scan.
         T_base_laser: (3, 3) pose of the upright virtual scanner in the base frame.
+        packed: the geometry of all levels packed into flat arrays, or None.
+        flat: (N,) the pyramid packed as ``packed`` lays it out (``pyramid`` holds views into it), or None.
     """
 
     stamp_s: float
@@ -1388,6 +1441,8 @@ class ScanFrame:
     valid_beams: int
     beams: int
     T_base_laser: np.ndarray
+    packed: PackedGeometry | None = None
+    flat: np.ndarray | None = None
 
 
 LevelSolver = Callable[[Sequence[np.ndarray], np.ndarray, LevelGeometry, int], "Solution | None"]
@@ -1465,7 +1520,7 @@ def coarse_to_fine(references: Sequence[list[np.ndarray]], ref_geoms: Sequence[L
     return Alignment(T, solution, tuple(per_level))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _filtered_update(T: np.ndarray, T_prior: np.ndarray, xi_m: np.ndarray, lam: np.ndarray, V: np.ndarray,
                      k_l: float, k_e: float) -> np.ndarray:
     """The running estimate ``T`` after a level solve ``xi_m`` (covariance eigenvalues ``lam``, eigenvectors
@@ -1475,194 +1530,111 @@ def _filtered_update(T: np.ndarray, T_prior: np.ndarray, xi_m: np.ndarray, lam: 
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Odometry bookkeeping shared by RF2O and SRF
+# One call per scan (packed pyramids, :mod:`simnav.odometry.rangeflow_fused`). These kernels live beside the ones
+# they call: Numba's cache only notices edits to the file of the cached function itself.
 
 
-class RangeFlowOdometry(ABC):
-    """Scan-to-scan bookkeeping shared by the range-flow odometries.
-
-    Subclasses set ``config``, implement :meth:`_levels` and :meth:`_align`, and may override
-    :meth:`_after_scan`. Each call to :meth:`process` prepares the scan, aligns it (or predicts with constant
-    velocity when the scan or its reference has too few valid beams, or the alignment fails), accumulates the
-    base pose and reports twist, covariance and degeneracy. Nothing raises on bad data and no output is NaN.
-    """
-
-    config: RangeFlowConfig
-
-    def __init__(self) -> None:
-        self._upright_cache: tuple[np.ndarray, np.ndarray, np.ndarray, PlanarScan] | None = None
-        self._layout_key: np.ndarray | None = None
-        self._layout_angles: np.ndarray | None = None
-        self._layout: BeamLayout | None = None
-        self._geoms: tuple[LevelGeometry, ...] = ()
-        self._info_cache: tuple[tuple[LevelGeometry, ...] | None, LevelGeometry | None] = (None, None)
-        self._info_geom: LevelGeometry | None = None
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget all history; the next scan starts a new odom frame."""
-        self._ref: ScanFrame | None = None
-        self._last_stamp_s: float | None = None
-        self._T_odom_base = np.eye(3)
-        self._xi_last = np.zeros(3)  # last laser increment, per scan
-        self._twist_laser: np.ndarray | None = None  # last laser twist, per second
-
-    # -- hooks ----------------------------------------------------------------------------------------------
-
-    @abstractmethod
-    def _levels(self, beams: int) -> int:
-        """Number of pyramid levels for a scan with ``beams`` beams."""
-
-    @abstractmethod
-    def _align(self, ref: ScanFrame, new: ScanFrame, xi_prior: np.ndarray) -> Alignment:
-        """Motion from ``ref`` to ``new`` (both valid)."""
-
-    def _after_scan(self, new: ScanFrame | None, T_prev_new: np.ndarray, measured: bool) -> dict:
-        """Called after each scan with the (valid) frame or None and the laser increment; returns extras."""
-        return {}
-
-    # -- pipeline -------------------------------------------------------------------------------------------
-
-    def process(self, scan: LaserScan) -> OdometryEstimate:
-        """Estimate the motion since the previous scan.
-
-        Args:
-            scan: the new scan (any mount; NaN/inf/out-of-range beams are treated as invalid).
-
-        Returns:
-            The estimate; see :class:`simnav.odometry.base.OdometryEstimate`.
-        """
-        t0 = time.perf_counter()
-        # 1. Upright scan, layout and pyramid.
-        ps = self._upright(scan)
-        frame = self._frame(ps)
-        dt = ps.stamp_s - self._last_stamp_s if self._last_stamp_s is not None else 0.0
-        xi_prior = self._prior(dt)
-        # 2. Align with the reference, or predict.
-        ref, first = self._ref, self._last_stamp_s is None
-        alignment, cov_laser, degenerate, rows = None, None, True, 0
-        if frame is not None and ref is not None:
-            self._info_geom = self._information_level(ref.geoms)
-            alignment = self._align(ref, frame, xi_prior)
-        if (alignment is not None and alignment.solution is not None and np.all(np.isfinite(alignment.T_ref_new))
-                and self._plausible(alignment.T_ref_new, dt)):
-            T_inc = alignment.T_ref_new
-            cov_laser, degenerate = self._covariance(alignment)
-            rows = alignment.solution.rows
-        else:
-            T_inc = np.eye(3) if first else se2_exp(xi_prior)
-        measured = cov_laser is not None
-        # 3. Base increment, pose, twist and covariance.
-        T_base_laser = ps.T_base_laser
-        T_inc_base = T_base_laser @ T_inc @ se2_inverse(T_base_laser)  # laser_to_base_motion, fast path
-        self._T_odom_base = self._T_odom_base @ T_inc_base
-        if measured:
-            Ad = se2_adjoint(T_base_laser)
-            cov = Ad @ cov_laser @ Ad.T
-        else:
-            cov = np.zeros((3, 3)) if first else self.config.lost_variance * np.eye(3)
-        twist = se2_log(T_inc_base) / dt if dt > 0 else np.zeros(3)
-        # 4. Remember the motion, the reference and the stamp.
-        xi_inc = se2_log(T_inc)
-        if not first:
-            self._xi_last = xi_inc
-            self._twist_laser = xi_inc / dt if dt > 0 else self._twist_laser
-        extra = self._after_scan(frame, T_inc, measured)
-        self._ref = frame
-        self._last_stamp_s = ps.stamp_s
-        extra.update(measured=measured, levels=len(frame.geoms) if frame is not None else 0)
-        return OdometryEstimate(
-            stamp_s=ps.stamp_s, T_odom_base=self._T_odom_base.copy(), twist_base=_finite(twist),
-            covariance=_finite(0.5 * (cov + cov.T)), degenerate=bool(degenerate and not first),
-            valid_points=int(rows), runtime_s=time.perf_counter() - t0, extra=extra)
-
-    def _plausible(self, T_inc: np.ndarray, dt: float) -> bool:
-        """Whether an increment over ``dt`` stays within the configured speed limits."""
-        if dt <= 0:
-            return True
-        xi = se2_log(T_inc)
-        return (math.hypot(xi[0], xi[1]) <= self.config.max_speed_m_s * dt
-                and abs(xi[2]) <= self.config.max_yaw_rate_rad_s * dt)
-
-    def _information_level(self, geoms: tuple[LevelGeometry, ...]) -> LevelGeometry:
-        """The level whose beam spacing is closest to ``degeneracy_spacing_deg`` (level solvers attach the
-        geometric information there)."""
-        if self._info_cache[0] is not geoms:
-            target = math.radians(self.config.degeneracy_spacing_deg)
-            best = min(geoms, key=lambda g: abs(float(np.median(g.spacing_rad)) - target))
-            self._info_cache = (geoms, best)
-        return self._info_cache[1]
-
-    def _covariance(self, alignment: Alignment) -> tuple[np.ndarray, bool]:
-        """Laser-frame covariance of an alignment and its degeneracy flag.
-
-        The covariance is the finest solve's; when the geometric information (attached at the level chosen by
-        :meth:`_information_level`) is degenerate, ``lost_variance`` is added along its weakest direction.
-        """
-        cov = alignment.solution.covariance
-        sol = next((s for s in alignment.level_solutions if s is not None and s.information is not None), None)
-        if sol is None or degeneracy_ratio(sol.information, sol.lever_m) >= self.config.degeneracy_threshold:
-            return cov, False
-        v = weakest_direction(sol.information, sol.lever_m)
-        return cov + self.config.lost_variance * np.outer(v, v), True
-
-    def _upright(self, scan: LaserScan) -> PlanarScan:
-        """:func:`simnav.odometry.base.planar_scan` of ``scan``; the beam order, upright angles and mount it
-        derives from the scanner's angles and mount are computed once per scanner."""
-        cached = self._upright_cache
-        if cached is None or not (np.array_equal(scan.angles_rad, cached[0])
-                                  and np.array_equal(scan.T_base_sensor, cached[1])):
-            # planar_scan of beam numbers 1..N tells where each upright beam comes from.
-            numbers = np.arange(1.0, len(scan.angles_rad) + 1.0)
-            probe = planar_scan(replace(scan, ranges_m=numbers, min_range_m=0.0, max_range_m=np.inf))
-            order = probe.ranges_m.astype(np.int64) - 1
-            cached = self._upright_cache = (np.array(scan.angles_rad, copy=True),
-                                            np.array(scan.T_base_sensor, copy=True), order, probe)
-        _, _, order, probe = cached
-        ranges = _upright_ranges(_f64(scan.ranges_m), order, float(scan.min_range_m), float(scan.max_range_m))
-        return PlanarScan(scan.stamp_s, ranges, probe.angles_rad, probe.T_base_laser, scan.max_range_m)
-
-    def _frame(self, ps: PlanarScan) -> ScanFrame | None:
-        """Layout, geometry and pyramid of a scan; None when it has too few valid beams."""
-        layout, geoms = self._geometry(ps.angles_rad)
-        ranges = ps.ranges_m[layout.take]
-        valid = int(np.count_nonzero(ranges > 0))
-        need = max(self.config.min_valid_points, math.ceil(self.config.min_valid_fraction * len(ps.ranges_m)))
-        if valid < need or not geoms:
-            return None
-        pyramid = build_pyramid(ranges, geoms, self.config.pyramid_gate_m, self.config.smooth_finest)
-        return ScanFrame(ps.stamp_s, pyramid, geoms, valid, len(ranges), ps.T_base_laser)
-
-    def _geometry(self, angles_rad: np.ndarray) -> tuple[BeamLayout, tuple[LevelGeometry, ...]]:
-        """Cached beam layout and pyramid geometry for an angle vector."""
-        if self._layout_key is None or not (angles_rad is self._layout_angles
-                                            or np.array_equal(angles_rad, self._layout_key)):
-            layout = beam_layout(angles_rad)
-            geoms = ()
-            if len(layout.angles_rad) >= max(self.config.min_level_beams, MIN_ROWS):
-                geoms = pyramid_geometry(layout, self._levels(len(layout.angles_rad)), self.config.min_level_beams)
-            self._layout_key, self._layout, self._geoms = np.array(angles_rad, copy=True), layout, geoms
-        self._layout_angles = angles_rad  # the cached upright angles come back as the same array
-        return self._layout, self._geoms
-
-    def _prior(self, dt: float) -> np.ndarray:
-        """Constant-velocity prediction of the laser increment over ``dt`` seconds (per-scan twist)."""
-        if self._twist_laser is not None and dt > 0:
-            return self._twist_laser * dt
-        return self._xi_last.copy()
+@njit(cache=True, error_model="numpy")
+def _pyramid_kernel(ranges: np.ndarray, windows: np.ndarray, offsets: np.ndarray, gate_m: float,
+                    smooth_finest: bool, out: np.ndarray) -> None:
+    """Compiled :func:`simnav.odometry.rangeflow_fused.build_packed_pyramid`: each level is the gated average of
+    the one before it."""
+    n0 = offsets[1]
+    if smooth_finest:
+        _gated_average_kernel(ranges, windows[:n0], gate_m, out[:n0])
+    else:
+        out[:n0] = ranges
+    for lv in range(1, len(offsets) - 1):
+        src = out[offsets[lv - 1]:offsets[lv]]
+        _gated_average_kernel(src, windows[offsets[lv]:offsets[lv + 1]], gate_m, out[offsets[lv]:offsets[lv + 1]])
 
 
-@njit(cache=True)
-def _upright_ranges(ranges: np.ndarray, order: np.ndarray, min_range_m: float, max_range_m: float) -> np.ndarray:
-    """(N,) ``ranges[order]`` with NaN, inf and out-of-range beams set to 0, as :func:`planar_scan` returns them."""
-    out = np.empty(len(order))
-    for k in range(len(order)):
-        r = ranges[order[k]]
-        ok = np.isfinite(r) and r > 0 and r >= min_range_m and r <= max_range_m
-        out[k] = r if ok else 0.0
-    return out
+@njit(cache=True, error_model="numpy")
+def _warp_levels_kernel(flat: np.ndarray, offsets: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                        seg_offsets: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, index_offsets: np.ndarray,
+                        index_angles: np.ndarray, index_values: np.ndarray, a0: np.ndarray, step: np.ndarray,
+                        circular: bool, T: np.ndarray, farthest: bool, out: np.ndarray) -> None:
+    """Compiled :func:`simnav.odometry.rangeflow_fused.warp_packed`: writes every warped level into ``out``."""
+    for lv in range(len(offsets) - 1):
+        o0, o1 = offsets[lv], offsets[lv + 1]
+        out[o0:o1] = _warp_level(flat[o0:o1], lv, offsets, cos, sin, seg_offsets, seg_a, seg_b, index_offsets,
+                                 index_angles, index_values, a0, step, circular, T, farthest)
 
 
-def _finite(a: np.ndarray) -> np.ndarray:
-    """``a`` with any non-finite entry replaced by 0 (a last guard; the pipeline should not produce any)."""
-    return np.where(np.isfinite(a), a, 0.0)
+@njit(cache=True, error_model="numpy")
+def _warp_level(ranges: np.ndarray, lv: int, offsets: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                seg_offsets: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, index_offsets: np.ndarray,
+                index_angles: np.ndarray, index_values: np.ndarray, a0: np.ndarray, step: np.ndarray,
+                circular: bool, T: np.ndarray, farthest: bool) -> np.ndarray:
+    """:func:`_warp_kernel` of level ``lv`` onto itself (source and target grid)."""
+    o0, o1 = offsets[lv], offsets[lv + 1]
+    s0, s1 = seg_offsets[lv], seg_offsets[lv + 1]
+    i0, i1 = index_offsets[lv], index_offsets[lv + 1]
+    c, s = cos[o0:o1], sin[o0:o1]
+    xw, yw, rho, u = _moved_points(ranges, c, s, T, a0[lv], step[lv], circular, index_angles[i0:i1],
+                                   index_values[i0:i1])
+    return _zbuffer(xw, yw, rho, u, seg_a[s0:s1], seg_b[s0:s1], c, s, circular, farthest)
+
+
+@njit(cache=True, error_model="numpy")
+def _coarse_to_fine_kernel(refs: np.ndarray, new: np.ndarray, offsets: np.ndarray, cos: np.ndarray,
+                           sin: np.ndarray, spacing: np.ndarray, gap_next: np.ndarray, prev: np.ndarray,
+                           nxt: np.ndarray, has_prev: np.ndarray, has_next: np.ndarray, seg_offsets: np.ndarray,
+                           seg_a: np.ndarray, seg_b: np.ndarray, index_offsets: np.ndarray,
+                           index_angles: np.ndarray, index_values: np.ndarray, a0: np.ndarray, step: np.ndarray,
+                           circular: bool, T_prior: np.ndarray, k_l0: float, k_e0: float, max_rewarps: int,
+                           rewarp_tolerance: float, symmetric: bool, floor: float, k_first: float,
+                           k_second: float, k_rt_a: float, normalise: bool, robust: int, iterations: int,
+                           param: float, min_decrease: float, info_level: int):
+    """Compiled :func:`simnav.odometry.rangeflow_fused.coarse_to_fine_packed`: ``(T, solved, xi, covariance,
+    normal, rows, lever, eigenvalues, eigenvectors, information)``, per-level arrays finest first."""
+    levels = len(offsets) - 1
+    T, moved = np.eye(3), False
+    solved = np.zeros(levels, dtype=np.bool_)
+    xi_l, cov_l, H_l = np.zeros((levels, 3)), np.zeros((levels, 3, 3)), np.zeros((levels, 3, 3))
+    rows_l, lever_l = np.zeros(levels, dtype=np.int64), np.zeros(levels)
+    lam_l, V_l, info = np.zeros((levels, 3)), np.zeros((levels, 3, 3)), np.zeros((3, 3))
+    for stage in range(levels):
+        lv = levels - 1 - stage
+        o0, o1 = offsets[lv], offsets[lv + 1]
+        k_l, k_e = k_l0 * math.exp(-stage), k_e0 * math.exp(-stage)
+        for _ in range(max(max_rewarps, 1)):
+            # 1. Warp the new scan onto the reference grid with the motion so far.
+            warped = new[o0:o1] if not moved else _warp_level(
+                new[o0:o1], lv, offsets, cos, sin, seg_offsets, seg_a, seg_b, index_offsets, index_angles,
+                index_values, a0, step, circular, T, False)
+            # 2. Pre-weighted constraints of every reference, stacked (3.99).
+            A = np.empty((0, 3))
+            b = np.empty(0)
+            used, lever, info_sum = 0, 0.0, np.zeros((3, 3))
+            for k in range(refs.shape[0]):
+                A_k, b_k, info_k, mean_k = _weighted_constraints_kernel(
+                    refs[k, o0:o1], warped, cos[o0:o1], sin[o0:o1], prev[o0:o1], nxt[o0:o1], has_prev[o0:o1],
+                    has_next[o0:o1], gap_next[o0:o1], spacing[o0:o1], symmetric, floor, k_first, k_second,
+                    k_rt_a, normalise, lv == info_level)
+                if len(b_k) < MIN_ROWS:
+                    continue
+                if used == 0:
+                    A, b = A_k, b_k
+                else:
+                    A, b = np.concatenate((A, A_k)), np.concatenate((b, b_k))
+                used += 1
+                lever += mean_k
+                info_sum += info_k
+            if used == 0:
+                break
+            # 3. Robust solve.
+            if robust == 0:
+                xi, cov, H, rows, lam, V = _irls_cauchy_kernel(A, b, iterations, param)
+            else:
+                xi, cov, H, rows, lam, V = _irls_truncated_parabola_kernel(A, b, iterations, param, min_decrease)
+            solved[lv] = True
+            xi_l[lv], cov_l[lv], H_l[lv], rows_l[lv], lever_l[lv] = xi, cov, H, rows, lever / used
+            lam_l[lv], V_l[lv] = lam, V
+            if lv == info_level:
+                info = info_sum
+            # 4. Filter against the prior residual motion and compose.
+            T, moved = _filtered_update(T, T_prior, xi, lam, V, k_l, k_e), True
+            if math.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]) < rewarp_tolerance:
+                break
+    return T, solved, xi_l, cov_l, H_l, rows_l, lever_l, lam_l, V_l, info

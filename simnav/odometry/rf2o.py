@@ -20,15 +20,15 @@ from simnav.odometry.rangeflow import (
     LevelGeometry,
     Preweights,
     RangeFlowConfig,
-    RangeFlowOdometry,
     ScanFrame,
     Solution,
-    coarse_to_fine,
     irls_cauchy,
     make_config,
     require,
     weighted_constraints,
 )
+from simnav.odometry.rangeflow_fused import CAUCHY, LevelModel
+from simnav.odometry.scan_odometry import RangeFlowOdometry
 
 
 @dataclass(frozen=True)
@@ -79,13 +79,15 @@ class RF2O(RangeFlowOdometry):
         self.config: RF2OConfig = make_config(RF2OConfig, config, "RF2O")
         self._ctf = CoarseToFine(self.config.filter_kl, self.config.filter_ke, max_rewarps=1)
         self._preweights = Preweights.rf2o(self.config.preweight_eps_m2, self.config.preweight_kd)
+        self._model = LevelModel(self.config.inter_geometry, self._preweights, CAUCHY, self.config.irls_iterations,
+                                 self.config.cauchy_k_ratio)
         super().__init__()
 
     def _levels(self, beams: int) -> int:
         return self.config.levels
 
     def _align(self, ref: ScanFrame, new: ScanFrame, xi_prior: np.ndarray) -> Alignment:
-        return coarse_to_fine([ref.pyramid], ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+        return self._coarse_to_fine([ref.flat], ref, new, xi_prior)
 
     def _solve_level(self, refs: Sequence[np.ndarray], warped: np.ndarray, geom: LevelGeometry,
                      step: int) -> Solution | None:

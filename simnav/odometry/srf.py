@@ -32,10 +32,8 @@ from simnav.odometry.rangeflow import (
     LevelGeometry,
     Preweights,
     RangeFlowConfig,
-    RangeFlowOdometry,
     ScanFrame,
     Solution,
-    coarse_to_fine,
     irls_truncated_parabola,
     make_config,
     require,
@@ -43,6 +41,8 @@ from simnav.odometry.rangeflow import (
     warp_scan,
     weighted_constraints,
 )
+from simnav.odometry.rangeflow_fused import TRUNCATED_PARABOLA, LevelModel, warp_packed
+from simnav.odometry.scan_odometry import RangeFlowOdometry
 from simnav.sensors.presets import LIDAR2D_PRESETS
 from simnav.sensors.readings import LaserScan
 
@@ -178,6 +178,8 @@ class SRFOdometry(RangeFlowOdometry):
         self._ctf = CoarseToFine(cfg.filter_kl, cfg.filter_ke, cfg.max_rewarps, cfg.rewarp_tolerance)
         self._preweights = (Preweights.srf(cfg.sensor_sigma_m, cfg.preweight_kd, cfg.preweight_k2d)
                             if cfg.preweighting else Preweights.srf(1.0, 0.0, 0.0))  # 1/sqrt(1 + 0) = unit weights
+        self._model = LevelModel(cfg.symmetric, self._preweights, TRUNCATED_PARABOLA,
+                                 cfg.irls_max_iterations if cfg.robust else 0, cfg.mad_factor, cfg.irls_min_decrease)
         super().__init__()
 
     def reset(self) -> None:
@@ -199,16 +201,16 @@ class SRFOdometry(RangeFlowOdometry):
         """Coarse-to-fine alignment of ``new`` with the previous scan and/or the warped keyscan; in mode KA with
         the previous scan when the keyscan overlaps the new scan too little."""
         # 1. References: the previous scan, the keyscan rendered from the previous scan's pose, or both.
-        refs, key_w = [ref.pyramid], None
+        refs, key_w = [ref.flat], None
         self._key_failed, self._overlap = False, None
         if self.config.mode != "CA" and self._key is not None and not self._key_is_prev:
             key_w = self._warped_key(ref)
             if key_w is None:
                 self._key_failed = True
             else:
-                refs = [key_w] if self.config.mode == "KA" else [ref.pyramid, key_w]
+                refs = [key_w] if self.config.mode == "KA" else [ref.flat, key_w]
         # 2. Estimate-and-warp through the pyramid.
-        alignment = coarse_to_fine(refs, ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+        alignment = self._coarse_to_fine(refs, ref, new, xi_prior)
         if key_w is None or self.config.mode != "KA" or self.config.keyscan_min_overlap <= 0:
             return alignment
         # 3. Overlap check (KA): a keyscan that saw too little of the new view is dropped; use the previous scan.
@@ -216,7 +218,7 @@ class SRFOdometry(RangeFlowOdometry):
         if self._overlap >= self.config.keyscan_min_overlap:
             return alignment
         self._key_failed = True
-        return coarse_to_fine([ref.pyramid], ref.geoms, new, self._solve_level, xi_prior, self._ctf)
+        return self._coarse_to_fine([ref.flat], ref, new, xi_prior)
 
     def _key_overlap(self, new: ScanFrame, T_key_new: np.ndarray) -> float:
         """:func:`simnav.odometry.keyscan.keyscan_overlap` of the keyscan and ``new`` at full resolution, with
@@ -228,17 +230,20 @@ class SRFOdometry(RangeFlowOdometry):
         return keyscan_overlap(self._key.pyramid[0], self._key.geoms[0], se2_inverse(T_key_new), new.pyramid[0],
                                geom, cfg.keyscan_overlap_tolerance_m, bin_beams)
 
-    def _warped_key(self, ref: ScanFrame) -> list[np.ndarray] | None:
-        """Keyscan pyramid warped into the previous scan's frame keeping the farthest points (§3.G.5), or None
-        when too little of it projects."""
+    def _warped_key(self, ref: ScanFrame) -> np.ndarray | None:
+        """Keyscan pyramid warped into the previous scan's frame keeping the farthest points (§3.G.5), packed on
+        the previous scan's grid, or None when too little of it projects."""
         key = self._key
         if len(key.geoms) < len(ref.geoms):
             return None
         T_prev_key = se2_inverse(self._T_key_prev)
-        warped = [warp_scan(key.pyramid[lv], key.geoms[lv], T_prev_key, g, keep="farthest")
-                  for lv, g in enumerate(ref.geoms)]
+        if key.packed is ref.packed:
+            warped = warp_packed(key.flat, ref.packed, T_prev_key, farthest=True)
+        else:
+            warped = np.concatenate([warp_scan(key.pyramid[lv], key.geoms[lv], T_prev_key, g, keep="farthest")
+                                     for lv, g in enumerate(ref.geoms)])
         need = max(self.config.min_valid_points, math.ceil(self.config.min_valid_fraction * ref.beams))
-        return warped if np.count_nonzero(warped[0]) >= need else None
+        return warped if np.count_nonzero(warped[:ref.geoms[0].n]) >= need else None
 
     def _solve_level(self, refs: Sequence[np.ndarray], warped: np.ndarray, geom: LevelGeometry,
                      step: int) -> Solution | None:

@@ -374,3 +374,85 @@ def test_twist_covariance_and_bookkeeping(name, rangesim):
     assert np.allclose(est.covariance, est.covariance.T) and np.all(np.linalg.eigvalsh(est.covariance) > 0)
     odo.reset()
     assert np.array_equal(odo.process(scans[2]).T_odom_base, np.eye(3))
+
+
+# ---- one kernel call per scan (rangeflow_fused) ------------------------------------------------------------
+
+
+def test_packed_pyramid_and_warp_match_the_per_level_kernels(rangesim):
+    from simnav.odometry.rangeflow_fused import build_packed_pyramid, pack_geometry, warp_packed
+
+    for circular, n, fov in [(False, 1080, 270), (True, 360, 360)]:
+        layout = rf.beam_layout(rangesim.uniform_angles(n, fov) + (0.01 if circular else 0.0))
+        geoms = rf.pyramid_geometry(layout, 5, 16)
+        packed = pack_geometry(geoms)
+        scan = rangesim.ScanSimulator(rangesim.l_room(), layout.angles_rad, noise_m=0.01).scan(
+            se2.from_xy_yaw(2.5, 2.2, 0.3))
+        ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+        flat = build_packed_pyramid(ranges, packed, 0.3, True)
+        for lv, level in enumerate(rf.build_pyramid(ranges, geoms, 0.3, True)):
+            assert np.array_equal(packed.split(flat)[lv], level)
+        T = se2.from_xy_yaw(0.08, -0.03, 0.05)
+        for farthest in (False, True):
+            warped = packed.split(warp_packed(flat, packed, T, farthest))
+            for lv, g in enumerate(geoms):
+                expected = rf.warp_scan(packed.split(flat)[lv], g, T, g, keep="farthest" if farthest else "closest")
+                assert np.array_equal(warped[lv], expected)
+
+
+@pytest.mark.parametrize(("name", "config"), [("rf2o", {}), ("srf", {"mode": "CA"}), ("srf", {"mode": "KA"}),
+                                              ("srf", {"mode": "MA"})])
+def test_one_call_coarse_to_fine_equals_the_python_loop(name, config, rangesim):
+    # The Python loop (used for scans on different grids) is the reference: same kernels, same order, same bits.
+    scans, _ = _room_scans(rangesim, n=25, noise_m=0.01, seed=3)
+    fused, loop = make_scan_odometry(name, **config), make_scan_odometry(name, **config)
+    calls = []
+
+    def python_loop(references, ref, new, xi_prior):
+        calls.append(len(references))
+        return rf.coarse_to_fine([ref.packed.split(r) for r in references], ref.geoms, new, loop._solve_level,
+                                 xi_prior, loop._ctf)
+
+    loop._coarse_to_fine = python_loop
+    for scan in scans:
+        a, b = fused.process(scan), loop.process(scan)
+        assert np.array_equal(a.T_odom_base, b.T_odom_base) and np.array_equal(a.covariance, b.covariance)
+        assert a.valid_points == b.valid_points and a.degenerate == b.degenerate
+    assert len(calls) >= 24 and (max(calls) == 2) == (config.get("mode") == "MA")
+
+
+@pytest.mark.parametrize("name", ODOMETRIES)
+def test_a_scanner_whose_beams_change_mid_run_is_aligned_across_the_change(name, rangesim):
+    # Scans on different grids take the Python loop (and SRF warps the keyscan level by level).
+    poses = rangesim.trajectory(12, speed_mps=0.5)
+    sims = [rangesim.ScanSimulator(rangesim.l_room(), rangesim.uniform_angles(n, 270), noise_m=0.005)
+            for n in (1080, 1000)]
+    odo = make_scan_odometry(name)
+    for i, T in enumerate(poses):
+        est = odo.process(sims[i // 6].scan(T, 0.1 * i))
+        _assert_finite(est)
+        assert est.extra["measured"] or i == 0
+    dist, yaw = _pose_error(est.T_odom_base, se2.inverse(poses[0]) @ poses[-1])
+    assert dist < 0.01 and yaw < 0.2
+
+
+def test_vectorisable_atan2_matches_libm_within_two_ulp():
+    from numba import njit
+
+    @njit
+    def angles(y, x):
+        out = np.empty(len(x))
+        for i in range(len(x)):
+            out[i] = rf.atan2_vectorisable(y[i], x[i])
+        return out
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=200_000) * np.exp(rng.uniform(-15, 15, 200_000))
+    y = rng.normal(size=200_000) * np.exp(rng.uniform(-15, 15, 200_000))
+    x[:100], y[100:200], x[200:300] = 0.0, 0.0, y[200:300]  # axes and the diagonal
+    x[300:400] = -y[300:400]
+    got, expected = angles(y, x), np.arctan2(y, x)
+    assert np.all(np.abs(got - expected) <= 2 * np.spacing(np.abs(expected)) + 1e-300)
+    signed_zeros = angles(np.array([-0.0, 0.0, -0.0, 0.0]), np.array([-1.0, -1.0, 1.0, 0.0]))
+    assert np.array_equal(signed_zeros, [-math.pi, math.pi, -0.0, 0.0])
+    assert np.array_equal(np.signbit(signed_zeros), [True, False, True, False])
