@@ -17,6 +17,7 @@ Conventions (thesis §3.B):
 
 from __future__ import annotations
 
+import math
 from functools import reduce
 
 import numpy as np
@@ -193,6 +194,8 @@ def exp(xi: ArrayLike) -> np.ndarray:
         (4, 4) or (..., 4, 4) pose ``T_a_b = exp(hat(xi))``.
     """
     xi = _as_float(xi, (6,), "xi")
+    if xi.ndim == 1:
+        return _exp_one(xi)
     w = xi[..., 3:]
     T = np.zeros(xi.shape[:-1] + (4, 4))
     T[..., :3, :3] = so3_exp(w)
@@ -211,9 +214,65 @@ def log(T: ArrayLike) -> np.ndarray:
         (6,) or (..., 6) twist ``(vx, vy, vz, wx, wy, wz)``.
     """
     T = _as_float(T, (4, 4), "T")
+    if T.ndim == 2:
+        return _log_one(T)
     w = so3_log(T[..., :3, :3])
     nu = (_v_inverse(w) @ T[..., :3, 3, None])[..., 0]
     return np.concatenate([nu, w], axis=-1)
+
+
+# One pose or twist at a time (the odometries' inner loops): the same formulas in scalars, about ten times faster
+# than a batch of one through the numpy functions above.
+
+
+def _coefficients_one(theta: float) -> tuple[float, float, float, float]:
+    """``sin t / t``, ``(1 - cos t) / t^2``, ``(t - sin t) / t^3`` and ``(1 - (t/2) cot(t/2)) / t^2`` of one
+    angle ``t`` >= 0 (Taylor series below ``_SMALL_ANGLE_RAD`` for the last two, as the batch versions)."""
+    a = math.sin(theta) / theta if theta > 0.0 else 1.0
+    half = math.sin(0.5 * theta) / (0.5 * theta) if theta > 0.0 else 1.0
+    b = 0.5 * half * half
+    t2 = theta * theta
+    if theta < _SMALL_ANGLE_RAD:
+        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0 - t2**3 / 362880.0
+        d = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
+    else:
+        c = (theta - math.sin(theta)) / theta**3
+        d = (1.0 - math.cos(0.5 * theta) / half) / t2
+    return a, b, c, d
+
+
+def _skew_one(wx: float, wy: float, wz: float) -> np.ndarray:
+    """(3, 3) :func:`skew` of one vector."""
+    return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+
+
+def _exp_one(xi: np.ndarray) -> np.ndarray:
+    """:func:`exp` of one (6,) twist."""
+    wx, wy, wz = float(xi[3]), float(xi[4]), float(xi[5])
+    a, b, c, _ = _coefficients_one(math.sqrt(wx * wx + wy * wy + wz * wz))
+    K = _skew_one(wx, wy, wz)
+    K2 = K @ K
+    T = np.eye(4)
+    T[:3, :3] += a * K + b * K2
+    T[:3, 3] = xi[:3] + (b * K + c * K2) @ xi[:3]
+    return T
+
+
+def _log_one(T: np.ndarray) -> np.ndarray:
+    """:func:`log` of one (4, 4) pose."""
+    R = T[:3, :3]
+    sx, sy, sz = 0.5 * (R[2, 1] - R[1, 2]), 0.5 * (R[0, 2] - R[2, 0]), 0.5 * (R[1, 0] - R[0, 1])
+    cos_theta = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    theta = math.atan2(math.sqrt(sx * sx + sy * sy + sz * sz), cos_theta)
+    if cos_theta >= 0.0:
+        k = 1.0 / (math.sin(theta) / theta) if theta > 0.0 else 1.0
+        w = np.array([sx * k, sy * k, sz * k])
+    else:
+        w = theta * _axis_near_pi(R, np.float64(cos_theta), np.array([sx, sy, sz]))
+    _, _, _, d = _coefficients_one(theta)
+    K = _skew_one(w[0], w[1], w[2])
+    nu = T[:3, 3] - 0.5 * (K @ T[:3, 3]) + d * (K @ (K @ T[:3, 3]))
+    return np.concatenate([nu, w])
 
 
 def inverse(T: ArrayLike) -> np.ndarray:

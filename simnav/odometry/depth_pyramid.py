@@ -288,12 +288,22 @@ def _warp_kernel(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, T: np.ndarray, f
     for v in range(h - 1):
         for u in range(w - 1):
             # Block a b / c d; each triangle is listed so that its last and first corners are the diagonal.
-            if abs(z[v, u] - z[v + 1, u + 1]) <= abs(z[v, u + 1] - z[v + 1, u]):  # diagonal a-d
-                _triangle(v, u, v, u + 1, v + 1, u + 1, z, pu, pv, inv, step, best, drawn)
-                _triangle(v + 1, u + 1, v + 1, u, v, u, z, pu, pv, inv, step, best, drawn)
-            else:  # diagonal b-c
-                _triangle(v, u + 1, v, u, v + 1, u, z, pu, pv, inv, step, best, drawn)
-                _triangle(v + 1, u, v + 1, u + 1, v, u + 1, z, pu, pv, inv, step, best, drawn)
+            diagonal_ad = abs(z[v, u] - z[v + 1, u + 1]) <= abs(z[v, u + 1] - z[v + 1, u])
+            for second in (False, True):
+                if diagonal_ad:
+                    corners = (v + 1, u + 1, v + 1, u, v, u) if second else (v, u, v, u + 1, v + 1, u + 1)
+                else:
+                    corners = (v + 1, u, v + 1, u + 1, v, u + 1) if second else (v, u + 1, v, u, v + 1, u)
+                v0, u0, v1, u1, v2, u2 = corners
+                ia, ib, ic = inv[v0, u0], inv[v1, u1], inv[v2, u2]
+                if ia <= 0 or ib <= 0 or ic <= 0:
+                    continue
+                za, zb, zc = z[v0, u0], z[v1, u1], z[v2, u2]
+                if not (_same_surface(za, zb, 1.0, step) and _same_surface(zb, zc, 1.0, step)
+                        and _same_surface(zc, za, SQRT2, step)):
+                    continue
+                drawn[v0, u0] = drawn[v1, u1] = drawn[v2, u2] = True
+                _rasterise(pu[v0, u0], pv[v0, u0], ia, pu[v1, u1], pv[v1, u1], ib, pu[v2, u2], pv[v2, u2], ic, best)
     # 3. Points in no triangle fall into their nearest pixel.
     for v in range(h):
         for u in range(w):
@@ -312,21 +322,12 @@ def _same_surface(z0: float, z1: float, pixels: float, step: float) -> bool:
     return abs(z1 - z0) <= step * pixels * min(z0, z1)
 
 
-@njit(cache=True, inline="always")
-def _triangle(v0: int, u0: int, v1: int, u1: int, v2: int, u2: int, z: np.ndarray, pu: np.ndarray,
-              pv: np.ndarray, inv: np.ndarray, step: float, best: np.ndarray, drawn: np.ndarray) -> None:
-    """Rasterises the triangle of source pixels 0, 1, 2 (projected by ``_warp_kernel``) into ``best`` (largest
-    inverse depth per target pixel). Corners 0-1 and 1-2 are 4-neighbours, 2-0 diagonal neighbours."""
-    if inv[v0, u0] <= 0 or inv[v1, u1] <= 0 or inv[v2, u2] <= 0:
-        return
-    za, zb, zc = z[v0, u0], z[v1, u1], z[v2, u2]
-    if not (_same_surface(za, zb, 1.0, step) and _same_surface(zb, zc, 1.0, step)
-            and _same_surface(zc, za, SQRT2, step)):
-        return
-    drawn[v0, u0] = drawn[v1, u1] = drawn[v2, u2] = True
-    au, av, ai = pu[v0, u0], pv[v0, u0], inv[v0, u0]
-    bu, bv, bi = pu[v1, u1], pv[v1, u1], inv[v1, u1]
-    cu, cv, ci = pu[v2, u2], pv[v2, u2], inv[v2, u2]
+@njit(cache=True)
+def _rasterise(au: float, av: float, ai: float, bu: float, bv: float, bi: float, cu: float, cv: float, ci: float,
+               best: np.ndarray) -> None:
+    """Rasterises the triangle of projected corners ``(u, v, inverse depth)`` a, b, c into ``best`` (largest
+    inverse depth per target pixel), interpolating the inverse depth linearly. Called once per triangle, not
+    inlined: with one array argument its reference counting is cheap against the rasterisation."""
     area = (bu - au) * (cv - av) - (cu - au) * (bv - av)
     if abs(area) < 1e-12:
         return

@@ -246,7 +246,11 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     Hm, g, info = np.zeros((6, 6)), np.zeros(6), np.zeros((6, 6))
     row = np.empty(6)
     bb, depth_sum, rows = 0.0, 0.0, 0
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+    h00 = h01 = h02 = h03 = h04 = h05 = h11 = h12 = h13 = h14 = h15 = h22 = h23 = h24 = h25 = 0.0
+    h33 = h34 = h35 = h44 = h45 = h55 = 0.0
     var_t = 1.0 / (2.0 * dt * dt)
+    xi_s = (xi[0], xi[1], xi[2], xi[3], xi[4], xi[5])  # a tuple of scalars: no reference counting per pixel
     for v in range(h):
         for u in range(w):
             if not (oku[v, u] and okv[v, u]):
@@ -257,12 +261,19 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
             gc = 1.0 + ga * xn[u] + gb * yn[v]
             row[0], row[1], row[2] = -ga, -gb, gc
             row[3], row[4], row[5] = gc * y + gb * d, -(gc * x + ga * d), ga * y - gb * x
-            weight = 1.0 / (_measurement_variance(xn[u], yn[v], d, ga, gb, gc, fx, fy, var_t, xi, kz) + lin[v, u])
+            weight = 1.0 / (_measurement_variance(xn[u], yn[v], d, ga, gb, gc, fx, fy, var_t, xi_s, kz) + lin[v, u])
             rhs = -zt[v, u] / dt
-            for i in range(6):
-                g[i] += weight * row[i] * rhs
-                for j in range(i, 6):
-                    Hm[i, j] += weight * row[i] * row[j]
+            # Upper triangle of the normal matrix in scalars (kept in registers; an array would be reloaded).
+            r0, r1, r2, r3, r4, r5 = row[0], row[1], row[2], row[3], row[4], row[5]
+            w0, w1, w2, w3, w4, w5 = weight * r0, weight * r1, weight * r2, weight * r3, weight * r4, weight * r5
+            g0, g1, g2 = g0 + w0 * rhs, g1 + w1 * rhs, g2 + w2 * rhs
+            g3, g4, g5 = g3 + w3 * rhs, g4 + w4 * rhs, g5 + w5 * rhs
+            h00, h01, h02 = h00 + w0 * r0, h01 + w0 * r1, h02 + w0 * r2
+            h03, h04, h05 = h03 + w0 * r3, h04 + w0 * r4, h05 + w0 * r5
+            h11, h12, h13, h14, h15 = h11 + w1 * r1, h12 + w1 * r2, h13 + w1 * r3, h14 + w1 * r4, h15 + w1 * r5
+            h22, h23, h24, h25 = h22 + w2 * r2, h23 + w2 * r3, h24 + w2 * r4, h25 + w2 * r5
+            h33, h34, h35 = h33 + w3 * r3, h34 + w3 * r4, h35 + w3 * r5
+            h44, h45, h55 = h44 + w4 * r4, h45 + w4 * r5, h55 + w5 * r5
             bb += weight * rhs * rhs
             if information:
                 unit = 1.0 / max(ga * ga + gb * gb + gc * gc, 1e-300)
@@ -272,6 +283,9 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
             depth_sum += d
             rows += 1
     # 5. Symmetrise, and scale the weights to at most 1 (only relative weights matter).
+    Hm[0], Hm[1, 1:], Hm[2, 2:] = (h00, h01, h02, h03, h04, h05), (h11, h12, h13, h14, h15), (h22, h23, h24, h25)
+    Hm[3, 3:], Hm[4, 4:], Hm[5, 5] = (h33, h34, h35), (h44, h45), h55
+    g[:] = (g0, g1, g2, g3, g4, g5)
     scale = 1.0 / max(np.abs(Hm).max(), 1e-300)
     for i in range(6):
         for j in range(i + 1, 6):
@@ -291,32 +305,31 @@ def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: flo
             oku[v, u] = okv[v, u] = False
             if d <= 0:
                 continue
-            # Along u the lateral coordinate is x, along v it is y.
-            x_prev = xn[u - 1] * z[v, u - 1] if u > 0 else 0.0
-            x_next = xn[u + 1] * z[v, u + 1] if u < w - 1 else 0.0
-            zu[v, u], oku[v, u] = _gradient_at(z, xn[u] * d, x_prev, x_next, v, u, 0, 1, discontinuity_px * d / fx)
-            y_prev = yn[v - 1] * z[v - 1, u] if v > 0 else 0.0
-            y_next = yn[v + 1] * z[v + 1, u] if v < h - 1 else 0.0
-            zv[v, u], okv[v, u] = _gradient_at(z, yn[v] * d, y_prev, y_next, v, u, 1, 0, discontinuity_px * d / fy)
+            # Along u the lateral coordinate is x, along v it is y; neighbours outside the image count as invalid.
+            d_prev, d_next = (z[v, u - 1] if u > 0 else 0.0), (z[v, u + 1] if u < w - 1 else 0.0)
+            x_prev = xn[u - 1] * d_prev if u > 0 else 0.0
+            x_next = xn[u + 1] * d_next if u < w - 1 else 0.0
+            zu[v, u], oku[v, u] = _gradient_at(d, d_prev, d_next, xn[u] * d, x_prev, x_next, discontinuity_px * d / fx)
+            d_prev, d_next = (z[v - 1, u] if v > 0 else 0.0), (z[v + 1, u] if v < h - 1 else 0.0)
+            y_prev = yn[v - 1] * d_prev if v > 0 else 0.0
+            y_next = yn[v + 1] * d_next if v < h - 1 else 0.0
+            zv[v, u], okv[v, u] = _gradient_at(d, d_prev, d_next, yn[v] * d, y_prev, y_next, discontinuity_px * d / fy)
 
 
 @njit(cache=True, inline="always")
-def _gradient_at(z: np.ndarray, c: float, c_prev: float, c_next: float, v: int, u: int, dv: int, du: int,
+def _gradient_at(d: float, d_prev: float, d_next: float, c: float, c_prev: float, c_next: float,
                  limit: float) -> tuple[float, bool]:
-    """Edge-aware gradient (3.44 / 3.45) at pixel (v, u) along (dv, du); ``c``, ``c_prev``, ``c_next`` are the
-    lateral coordinates of the pixel and its two neighbours, neighbours farther than ``limit`` (m) are ignored."""
-    h, w = z.shape
-    d = z[v, u]
-    vp, up, vn, un = v - dv, u - du, v + dv, u + du
+    """Edge-aware gradient (3.44 / 3.45) of a pixel of depth ``d`` along one image axis, from its neighbours'
+    depths (0 = invalid or outside) and the lateral coordinates ``c`` of all three; neighbours farther than
+    ``limit`` (m) are ignored. Scalars only: array arguments would cost reference counting per pixel."""
     diff_p = diff_n = dist_p = dist_n = 0.0
-    has_p = vp >= 0 and up >= 0 and z[vp, up] > 0
-    has_n = vn < h and un < w and z[vn, un] > 0
+    has_p, has_n = d_prev > 0, d_next > 0
     if has_p:
-        diff_p = d - z[vp, up]
+        diff_p = d - d_prev
         dist_p = math.sqrt(diff_p * diff_p + (c - c_prev) ** 2)
         has_p = dist_p <= limit
     if has_n:
-        diff_n = z[vn, un] - d
+        diff_n = d_next - d
         dist_n = math.sqrt(diff_n * diff_n + (c_next - c) ** 2)
         has_n = dist_n <= limit
     if has_p and has_n:  # weights r = 1 / dist of each side's own difference, written without divisions
@@ -352,7 +365,7 @@ def _add_centred_squared(f: np.ndarray, ok: np.ndarray, axis: int, scale: float,
 
 @njit(cache=True, inline="always")
 def _measurement_variance(xz: float, yz: float, z: float, a: float, b: float, c: float, fx: float, fy: float,
-                          var_t: float, xi: np.ndarray, kz: float) -> float:
+                          var_t: float, xi: tuple[float, float, float, float, float, float], kz: float) -> float:
     """Variance of one constraint from the depth noise (3.30 with the covariances 3.47–3.56).
 
     ``sigma_m^2 = sigma_Zt^2 + (dR/dZ_u sigma_Zu)^2 + (dR/dZ_v sigma_Zv)^2 + k_z^2 z^2 (dR/dp . p)^2`` with
@@ -366,7 +379,7 @@ def _measurement_variance(xz: float, yz: float, z: float, a: float, b: float, c:
         a, b, c: the coefficients of :func:`level_system`.
         fx, fy: focal lengths, pixels.
         var_t: ``1 / (2 dt^2)``, 1/s².
-        xi: (6,) expected velocity, m/s and rad/s.
+        xi: the six components of the expected velocity, m/s and rad/s.
         kz: ``k_z``, 1/m.
     """
     x, y = xz * z, yz * z

@@ -66,6 +66,18 @@ def test_log_exp_round_trip_tiny_and_near_pi() -> None:
         np.testing.assert_allclose(se3.log(se3.exp(x)), x, atol=1e-8)
 
 
+def test_single_twists_and_poses_match_the_batch() -> None:
+    # One twist or pose takes a scalar path; it must agree with the batch formulas to rounding.
+    rng = np.random.default_rng(1)
+    xi = np.concatenate([_random_twists(rng, 200), _special_twists(rng), rng.normal(scale=1e-4, size=(50, 6))])
+    T = se3.exp(xi)
+    for x, T_x in zip(xi, T):
+        np.testing.assert_allclose(se3.exp(x), T_x, rtol=0, atol=1e-14)
+    w = se3.log(T)
+    for T_x, w_x in zip(T, w):
+        np.testing.assert_allclose(se3.log(T_x), w_x, rtol=0, atol=1e-12)
+
+
 def test_exp_log_round_trip_random_poses() -> None:
     rng = np.random.default_rng(0)
     T = _random_poses(rng, N)
