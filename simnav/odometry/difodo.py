@@ -296,42 +296,49 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
 @njit(cache=True)
 def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float, discontinuity_px: float,
                zu: np.ndarray, zv: np.ndarray, oku: np.ndarray, okv: np.ndarray) -> None:
-    """Compiled :func:`edge_aware_gradient` of a float64 depth image, written into ``zu, zv, oku, okv``."""
+    """Compiled :func:`edge_aware_gradient` of a float64 depth image, written into ``zu, zv, oku, okv``.
+
+    The difference and distance between two neighbours serve both of them: they are computed once per pair, a
+    row at a time (to the right neighbour along u, lateral coordinate x; to the one below along v, lateral y).
+    """
     h, w = z.shape
+    right_diff, right_dist = np.zeros(w), np.zeros(w)
+    above_diff, above_dist, below_diff, below_dist = np.zeros(w), np.zeros(w), np.zeros(w), np.zeros(w)
     for v in range(h):
+        # 1. Pairs of this row with the next row (lateral coordinate y) and with the right neighbours (x).
+        if v < h - 1:
+            for u in range(w):
+                below_diff[u] = z[v + 1, u] - z[v, u]
+                lateral = yn[v + 1] * z[v + 1, u] - yn[v] * z[v, u]
+                below_dist[u] = math.sqrt(below_diff[u] * below_diff[u] + lateral ** 2)
+        for u in range(w - 1):
+            right_diff[u] = z[v, u + 1] - z[v, u]
+            lateral = xn[u + 1] * z[v, u + 1] - xn[u] * z[v, u]
+            right_dist[u] = math.sqrt(right_diff[u] * right_diff[u] + lateral ** 2)
+        # 2. Each valid pixel from its two pairs along each axis.
         for u in range(w):
             d = z[v, u]
             zu[v, u] = zv[v, u] = 0.0
             oku[v, u] = okv[v, u] = False
             if d <= 0:
                 continue
-            # Along u the lateral coordinate is x, along v it is y; neighbours outside the image count as invalid.
-            d_prev, d_next = (z[v, u - 1] if u > 0 else 0.0), (z[v, u + 1] if u < w - 1 else 0.0)
-            x_prev = xn[u - 1] * d_prev if u > 0 else 0.0
-            x_next = xn[u + 1] * d_next if u < w - 1 else 0.0
-            zu[v, u], oku[v, u] = _gradient_at(d, d_prev, d_next, xn[u] * d, x_prev, x_next, discontinuity_px * d / fx)
-            d_prev, d_next = (z[v - 1, u] if v > 0 else 0.0), (z[v + 1, u] if v < h - 1 else 0.0)
-            y_prev = yn[v - 1] * d_prev if v > 0 else 0.0
-            y_next = yn[v + 1] * d_next if v < h - 1 else 0.0
-            zv[v, u], okv[v, u] = _gradient_at(d, d_prev, d_next, yn[v] * d, y_prev, y_next, discontinuity_px * d / fy)
+            has_l, has_r = u > 0 and z[v, u - 1] > 0, u < w - 1 and z[v, u + 1] > 0
+            zu[v, u], oku[v, u] = _gradient_at(right_diff[u - 1], right_dist[u - 1], has_l, right_diff[u],
+                                               right_dist[u], has_r, discontinuity_px * d / fx)
+            has_a, has_b = v > 0 and z[v - 1, u] > 0, v < h - 1 and z[v + 1, u] > 0
+            zv[v, u], okv[v, u] = _gradient_at(above_diff[u], above_dist[u], has_a, below_diff[u], below_dist[u],
+                                               has_b, discontinuity_px * d / fy)
+        above_diff, above_dist, below_diff, below_dist = below_diff, below_dist, above_diff, above_dist
 
 
 @njit(cache=True, inline="always")
-def _gradient_at(d: float, d_prev: float, d_next: float, c: float, c_prev: float, c_next: float,
+def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_n: float, has_n: bool,
                  limit: float) -> tuple[float, bool]:
-    """Edge-aware gradient (3.44 / 3.45) of a pixel of depth ``d`` along one image axis, from its neighbours'
-    depths (0 = invalid or outside) and the lateral coordinates ``c`` of all three; neighbours farther than
-    ``limit`` (m) are ignored. Scalars only: array arguments would cost reference counting per pixel."""
-    diff_p = diff_n = dist_p = dist_n = 0.0
-    has_p, has_n = d_prev > 0, d_next > 0
-    if has_p:
-        diff_p = d - d_prev
-        dist_p = math.sqrt(diff_p * diff_p + (c - c_prev) ** 2)
-        has_p = dist_p <= limit
-    if has_n:
-        diff_n = d_next - d
-        dist_n = math.sqrt(diff_n * diff_n + (c_next - c) ** 2)
-        has_n = dist_n <= limit
+    """Edge-aware gradient (3.44 / 3.45) of one pixel along one axis from the difference and distance to its
+    previous and next neighbour (where those are valid); neighbours farther than ``limit`` (m) are ignored.
+    Scalars only: array arguments would cost reference counting per pixel."""
+    has_p = has_p and dist_p <= limit
+    has_n = has_n and dist_n <= limit
     if has_p and has_n:  # weights r = 1 / dist of each side's own difference, written without divisions
         return (dist_p * diff_n + dist_n * diff_p + 1e-12 * (diff_n + diff_p)) / (dist_p + dist_n + 2e-12), True
     if has_n:

@@ -23,6 +23,8 @@ from numba import njit
 PLANE, SPHERE, CAPSULE, CYLINDER, BOX = 0, 2, 3, 5, 6  # mjtGeom codes this module models
 SUPPORTED_TYPES = frozenset({PLANE, SPHERE, CAPSULE, CYLINDER, BOX})
 AZIMUTH_BINS = 1024
+RECT, CIRCLE = 0.0, 1.0  # kinds of section rows
+SECTION_FIELDS = 10
 VERTICAL_TOL = 1e-9  # |z| of a unit vector still treated as horizontal (or 1 - |z| as vertical)
 _TWO_PI = 2.0 * math.pi
 
@@ -53,93 +55,105 @@ def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, g
             return False
         dist_out[i] = -1.0
         geom_out[i] = -1
-    start, order = _bin_rays(azimuth_rad)
-    ox, oy, oz = origin[0], origin[1], origin[2]
+    # 1. The 2D section of every geom that crosses the scan plane, in geom order (ties go to the first).
+    sections, count = np.empty((3 * len(geom_ids), SECTION_FIELDS)), 0
+    oz = origin[2]
     for g in geom_ids:
-        t, pos, mat, size = geom_type[g], geom_xpos[g], geom_xmat[g], geom_size[g]
-        dz = abs(oz - pos[2])
+        # Scalars only: views or array arguments would cost reference counting per geom.
+        t, dz, m8 = geom_type[g], abs(oz - geom_xpos[g, 2]), geom_xmat[g, 8]
         if t == PLANE:
-            if abs(mat[8]) < 1.0 - VERTICAL_TOL:
+            if abs(m8) < 1.0 - VERTICAL_TOL:
                 return False
         elif dz > geom_rbound[g]:
             continue  # entirely above or below the scan plane
         elif t == BOX:
-            up = _vertical_axis(mat)
+            up = _vertical_axis(geom_xmat[g, 6], geom_xmat[g, 7], m8)
             if up < 0:
                 return False
-            if dz <= size[up]:
+            if dz <= geom_size[g, up]:
                 a, b = (up + 1) % 3, (up + 2) % 3
-                _cast_rect(ox, oy, pos[0], pos[1], mat[a], mat[3 + a], mat[b], mat[3 + b], size[a], size[b], g,
-                           dirs, start, order, max_dist_m, dist_out, geom_out)
-        elif t == SPHERE or abs(mat[8]) >= 1.0 - VERTICAL_TOL:
-            r = _section_radius(t, size, dz)
+                count = _put(sections, count, (RECT, float(g), geom_xpos[g, 0], geom_xpos[g, 1], geom_xmat[g, a],
+                                               geom_xmat[g, 3 + a], geom_xmat[g, b], geom_xmat[g, 3 + b],
+                                               geom_size[g, a], geom_size[g, b]))
+        elif t == SPHERE or abs(m8) >= 1.0 - VERTICAL_TOL:
+            r = _section_radius(t, geom_size[g, 0], geom_size[g, 1], dz)
             if r < 0.0:
                 return False
             if r > 0.0:
-                _cast_circle(ox, oy, pos[0], pos[1], r, g, dirs, start, order, max_dist_m, dist_out, geom_out)
-        elif abs(mat[8]) <= VERTICAL_TOL:
-            if not _cast_lying(ox, oy, t, pos, mat, size, dz, g, dirs, start, order, max_dist_m, dist_out, geom_out):
+                count = _put(sections, count, (CIRCLE, float(g), geom_xpos[g, 0], geom_xpos[g, 1], r, 0.0, 0.0, 0.0, 0.0,
+                                               0.0))
+        elif abs(m8) <= VERTICAL_TOL:
+            count = _lying_sections(origin[0], origin[1], t, geom_xpos[g], geom_xmat[g], geom_size[g], dz, g,
+                                    sections, count)
+            if count < 0:
                 return False
         else:
             return False
+    # 2. Every section against the rays of its azimuth bins.
+    _cast_sections(origin[0], origin[1], sections, count, dirs, *_bin_rays(azimuth_rad), max_dist_m, dist_out,
+                   geom_out)
     return True
 
 
-@njit(cache=True)
-def _cast_lying(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: np.ndarray, size: np.ndarray, dz: float,
-                g: int, dirs: np.ndarray, start: np.ndarray, order: np.ndarray, max_dist_m: float,
-                dist_out: np.ndarray, geom_out: np.ndarray) -> bool:
-    """A cylinder or capsule whose axis is horizontal: a rectangle, plus end circles for the capsule's stadium.
+@njit(cache=True, inline="always")
+def _put(sections: np.ndarray, count: int, row: tuple) -> int:
+    """Writes ``row`` (SECTION_FIELDS numbers) as section ``count``; returns the new count."""
+    for k in range(SECTION_FIELDS):
+        sections[count, k] = row[k]
+    return count + 1
 
-    Returns False for another type, or for an origin inside the stadium (a union's exit is not its pieces').
-    """
+
+@njit(cache=True)
+def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: np.ndarray, size: np.ndarray,
+                    dz: float, g: int, sections: np.ndarray, count: int) -> int:
+    """Sections of a cylinder or capsule whose axis is horizontal: a rectangle, plus end circles for the
+    capsule's stadium. Returns the new count, or -1 for another type or an origin inside the stadium (a union's
+    exit is not its pieces')."""
     r, half = size[0], size[1]
     if dz >= r:
-        return True
+        return count
     w = math.sqrt(r * r - dz * dz)  # half-width of the section
     ux, uy = mat[2], mat[5]  # the axis, horizontal
     norm = math.sqrt(ux * ux + uy * uy)
     ux, uy = ux / norm, uy / norm
-    if geom_type == CYLINDER:
-        _cast_rect(ox, oy, pos[0], pos[1], ux, uy, -uy, ux, half, w, g, dirs, start, order, max_dist_m, dist_out,
-                   geom_out)
-        return True
-    if geom_type != CAPSULE:
-        return False
-    pu, pv = (ox - pos[0]) * ux + (oy - pos[1]) * uy, -(ox - pos[0]) * uy + (oy - pos[1]) * ux
-    gap_u = max(abs(pu) - half, 0.0)
-    if gap_u * gap_u + pv * pv <= w * w:
-        return False
-    _cast_rect(ox, oy, pos[0], pos[1], ux, uy, -uy, ux, half, w, g, dirs, start, order, max_dist_m, dist_out,
-               geom_out)
-    for end in (-half, half):
-        _cast_circle(ox, oy, pos[0] + end * ux, pos[1] + end * uy, w, g, dirs, start, order, max_dist_m, dist_out,
-                     geom_out)
-    return True
+    if geom_type != CYLINDER and geom_type != CAPSULE:
+        return -1
+    if geom_type == CAPSULE:
+        pu, pv = (ox - pos[0]) * ux + (oy - pos[1]) * uy, -(ox - pos[0]) * uy + (oy - pos[1]) * ux
+        gap_u = max(abs(pu) - half, 0.0)
+        if gap_u * gap_u + pv * pv <= w * w:
+            return -1
+    count = _put(sections, count, (RECT, float(g), pos[0], pos[1], ux, uy, -uy, ux, half, w))
+    if geom_type == CAPSULE:
+        for end in (-half, half):
+            count = _put(sections, count, (CIRCLE, float(g), pos[0] + end * ux, pos[1] + end * uy, w, 0.0, 0.0, 0.0, 0.0,
+                                           0.0))
+    return count
 
 
 @njit(cache=True)
-def _vertical_axis(mat: np.ndarray) -> int:
-    """Index of the geom axis (column of the row-major ``mat``) along world z, or -1 if none is."""
-    for k in range(3):
-        if abs(mat[6 + k]) >= 1.0 - VERTICAL_TOL:
+def _vertical_axis(m6: float, m7: float, m8: float) -> int:
+    """Index of the geom axis along world z, from the last row ``m6, m7, m8`` of its row-major rotation, or -1 if
+    none is."""
+    for k, m in enumerate((m6, m7, m8)):
+        if abs(m) >= 1.0 - VERTICAL_TOL:
             return k
     return -1
 
 
 @njit(cache=True)
-def _section_radius(geom_type: int, size: np.ndarray, dz: float) -> float:
-    """Radius of an upright round geom's section ``dz`` from its centre (0: the plane misses it; -1: unknown type)."""
+def _section_radius(geom_type: int, size0: float, size1: float, dz: float) -> float:
+    """Radius of an upright round geom's section ``dz`` from its centre, from its first two sizes (0: the plane
+    misses it; -1: unknown type)."""
     if geom_type == SPHERE:
-        r = size[0]
-        return math.sqrt(r * r - dz * dz) if dz < r else 0.0
+        return math.sqrt(size0 * size0 - dz * dz) if dz < size0 else 0.0
     if geom_type == CYLINDER:
-        return size[0] if dz <= size[1] else 0.0
+        return size0 if dz <= size1 else 0.0
     if geom_type == CAPSULE:
-        r, cap = size[0], dz - size[1]
+        cap = dz - size1
         if cap <= 0.0:
-            return r
-        return math.sqrt(r * r - cap * cap) if cap < r else 0.0
+            return size0
+        return math.sqrt(size0 * size0 - cap * cap) if cap < size0 else 0.0
     return -1.0
 
 
@@ -198,55 +212,57 @@ def _bin_span(center_rad: float, half_width_rad: float) -> tuple[int, int]:
 
 
 @njit(cache=True)
-def _cast_circle(ox: float, oy: float, cx: float, cy: float, r: float, g: int, dirs: np.ndarray, start: np.ndarray,
-                 order: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> None:
-    """Rays against a circle: the smallest non-negative root of |o + t d - c|^2 = r^2."""
-    px, py = ox - cx, oy - cy
-    d = math.sqrt(px * px + py * py)
-    if d - r > max_dist_m:
-        return
-    half = math.pi if d <= r else math.asin(r / d)
-    lo, hi = _bin_span(math.atan2(-py, -px), half)
-    c = px * px + py * py - r * r
-    for b in range(lo, hi + 1):
-        bb = b % AZIMUTH_BINS
-        for j in range(start[bb], start[bb + 1]):
-            i = order[j]
-            half_b = px * dirs[i, 0] + py * dirs[i, 1]
-            disc = half_b * half_b - c
-            if disc < 0.0:
+def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs: np.ndarray, start: np.ndarray,
+                   order: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> None:
+    """The rays from ``(ox, oy)`` against the first ``count`` sections (rows ``kind, geom, cx, cy, ...``): a ray
+    keeps its first non-negative hit. Written out in one loop: per-section calls with array arguments would cost
+    reference counting per geom."""
+    for s in range(count):
+        kind, g, cx, cy = sections[s, 0], int(sections[s, 1]), sections[s, 2], sections[s, 3]
+        px, py = ox - cx, oy - cy
+        if kind == CIRCLE:
+            # Smallest non-negative root of |o + t d - c|^2 = r^2.
+            r = sections[s, 4]
+            d = math.sqrt(px * px + py * py)
+            if d - r > max_dist_m:
                 continue
-            root = math.sqrt(disc)
-            t = -half_b - root
-            if t < 0.0:
-                t = -half_b + root
-            if t >= 0.0 and (geom_out[i] < 0 or t < dist_out[i]):
-                dist_out[i], geom_out[i] = t, g
-
-
-@njit(cache=True)
-def _cast_rect(ox: float, oy: float, cx: float, cy: float, ux: float, uy: float, vx: float, vy: float, hu: float,
-               hv: float, g: int, dirs: np.ndarray, start: np.ndarray, order: np.ndarray, max_dist_m: float,
-               dist_out: np.ndarray, geom_out: np.ndarray) -> None:
-    """Rays against a rectangle centred at c with unit axes u, v and half-sizes hu, hv (slab test)."""
-    px, py = ox - cx, oy - cy
-    pu, pv = px * ux + py * uy, px * vx + py * vy  # origin in the rectangle's frame
-    gap_u, gap_v = max(abs(pu) - hu, 0.0), max(abs(pv) - hv, 0.0)
-    if math.sqrt(gap_u * gap_u + gap_v * gap_v) > max_dist_m:
-        return
-    inside = abs(pu) <= hu and abs(pv) <= hv
-    center = math.atan2(-py, -px)
-    half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv, center)
-    lo, hi = _bin_span(center, half)
-    for b in range(lo, hi + 1):
-        bb = b % AZIMUTH_BINS
-        for j in range(start[bb], start[bb + 1]):
-            i = order[j]
-            du = dirs[i, 0] * ux + dirs[i, 1] * uy
-            dv = dirs[i, 0] * vx + dirs[i, 1] * vy
-            t = _slab_hit(pu, pv, du, dv, hu, hv)
-            if t >= 0.0 and (geom_out[i] < 0 or t < dist_out[i]):
-                dist_out[i], geom_out[i] = t, g
+            lo, hi = _bin_span(math.atan2(-py, -px), math.pi if d <= r else math.asin(r / d))
+            c = px * px + py * py - r * r
+            for b in range(lo, hi + 1):
+                bb = b % AZIMUTH_BINS
+                for j in range(start[bb], start[bb + 1]):
+                    i = order[j]
+                    half_b = px * dirs[i, 0] + py * dirs[i, 1]
+                    disc = half_b * half_b - c
+                    if disc < 0.0:
+                        continue
+                    root = math.sqrt(disc)
+                    t = -half_b - root
+                    if t < 0.0:
+                        t = -half_b + root
+                    if t >= 0.0 and (geom_out[i] < 0 or t < dist_out[i]):
+                        dist_out[i], geom_out[i] = t, g
+        else:
+            # Rectangle centred at c with unit axes u, v and half-sizes hu, hv (slab test).
+            ux, uy, vx, vy, hu, hv = sections[s, 4], sections[s, 5], sections[s, 6], sections[s, 7], \
+                sections[s, 8], sections[s, 9]
+            pu, pv = px * ux + py * uy, px * vx + py * vy  # origin in the rectangle's frame
+            gap_u, gap_v = max(abs(pu) - hu, 0.0), max(abs(pv) - hv, 0.0)
+            if math.sqrt(gap_u * gap_u + gap_v * gap_v) > max_dist_m:
+                continue
+            inside = abs(pu) <= hu and abs(pv) <= hv
+            center = math.atan2(-py, -px)
+            half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv, center)
+            lo, hi = _bin_span(center, half)
+            for b in range(lo, hi + 1):
+                bb = b % AZIMUTH_BINS
+                for j in range(start[bb], start[bb + 1]):
+                    i = order[j]
+                    du = dirs[i, 0] * ux + dirs[i, 1] * uy
+                    dv = dirs[i, 0] * vx + dirs[i, 1] * vy
+                    t = _slab_hit(pu, pv, du, dv, hu, hv)
+                    if t >= 0.0 and (geom_out[i] < 0 or t < dist_out[i]):
+                        dist_out[i], geom_out[i] = t, g
 
 
 @njit(cache=True)
