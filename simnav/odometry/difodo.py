@@ -24,8 +24,9 @@ Conventions:
 * Pyramid levels are solved coarsest first; ``l = 1`` is the coarsest in the filter constants (3.46).
 
 The per-pixel stages are Numba kernels (``@njit(cache=True)``: compiled on first use, about 10 s, then loaded from
-``__pycache__``). With the constraints built by numpy array operations, a frame took 31 ms of CPU time at QVGA and
-11 ms at QQVGA, against 14 ms and 4.6 ms now (``scripts/bench_difodo_runtime.py``; a 30 Hz camera leaves 33 ms).
+``__pycache__``); helpers they call per pixel take scalars, as an array argument costs reference counting per
+call. A QVGA frame takes about 15 ms on one core, a QQVGA frame about 5.5 ms (``scripts/bench_difodo_runtime.py``;
+a 30 Hz camera leaves 33 ms).
 """
 
 from __future__ import annotations
