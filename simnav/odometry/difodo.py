@@ -323,6 +323,7 @@ def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: flo
             oku[v, u] = okv[v, u] = False
             if d <= 0:
                 continue
+            # (index u - 1 wraps at u = 0, where has_l is False and the value is ignored)
             has_l, has_r = u > 0 and z[v, u - 1] > 0, u < w - 1 and z[v, u + 1] > 0
             zu[v, u], oku[v, u] = _gradient_at(right_diff[u - 1], right_dist[u - 1], has_l, right_diff[u],
                                                right_dist[u], has_r, discontinuity_px * d / fx)

@@ -479,9 +479,7 @@ def grid_index(phi_rad: np.ndarray, geom: LevelGeometry) -> np.ndarray:
 def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_angles: np.ndarray,
                    index_values: np.ndarray) -> float:
     """:func:`grid_index` of one direction; ``step`` is the uniform spacing or 0."""
-    offset = phi - a0
-    if offset < 0.0:
-        offset += TWO_PI
+    offset = _angle_offset(phi, a0)
     if step > 0:
         return _uniform_index(offset, step, circular, index_values[-1])
     x = a0 + offset
@@ -499,6 +497,13 @@ def _grid_index_at(phi: float, a0: float, step: float, circular: bool, index_ang
         return index_values[hi]
     slope = (index_values[hi] - index_values[lo]) / (index_angles[hi] - index_angles[lo])
     return slope * (x - index_angles[lo]) + index_values[lo]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _angle_offset(phi: float, a0: float) -> float:
+    """Angle from the first beam ``a0`` to a direction ``phi`` in [-pi, pi], counter-clockwise, rad."""
+    offset = phi - a0
+    return offset + TWO_PI if offset < 0.0 else offset
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -609,7 +614,7 @@ def _moved_points(ranges: np.ndarray, src_cos: np.ndarray, src_sin: np.ndarray, 
         if not ranges[i] > 0:
             u[i] = np.nan
         elif step > 0:
-            u[i] = _uniform_index(u[i] - a0 + (TWO_PI if u[i] < a0 else 0.0), step, circular, last)
+            u[i] = _uniform_index(_angle_offset(u[i], a0), step, circular, last)
         else:
             u[i] = _grid_index_at(u[i], a0, step, circular, index_angles, index_values)
     return xw, yw, rho, u

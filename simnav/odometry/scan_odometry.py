@@ -72,7 +72,7 @@ class RangeFlowOdometry(ABC):
         self._layout: BeamLayout | None = None
         self._geoms: tuple[LevelGeometry, ...] = ()
         self._packed: PackedGeometry | None = None
-        self._info_cache: tuple[tuple[LevelGeometry, ...] | None, LevelGeometry | None, int] = (None, None, -1)
+        self._info_cache: tuple[tuple[LevelGeometry, ...] | None, int] = (None, -1)
         self._info_geom: LevelGeometry | None = None
         self._info_level = -1
         self.reset()
@@ -132,8 +132,8 @@ class RangeFlowOdometry(ABC):
         ref, first = self._ref, self._last_stamp_s is None
         alignment, cov_laser, degenerate, rows = None, None, True, 0
         if frame is not None and ref is not None:
-            self._info_geom = self._information_level(ref.geoms)
-            self._info_level = self._info_cache[2]
+            self._info_level = self._information_level(ref.geoms)
+            self._info_geom = ref.geoms[self._info_level]
             alignment = self._align(ref, frame, xi_prior)
         if (alignment is not None and alignment.solution is not None and np.all(np.isfinite(alignment.T_ref_new))
                 and self._plausible(alignment.T_ref_new, dt)):
@@ -175,13 +175,13 @@ class RangeFlowOdometry(ABC):
         return (math.hypot(xi[0], xi[1]) <= self.config.max_speed_m_s * dt
                 and abs(xi[2]) <= self.config.max_yaw_rate_rad_s * dt)
 
-    def _information_level(self, geoms: tuple[LevelGeometry, ...]) -> LevelGeometry:
-        """The level whose beam spacing is closest to ``degeneracy_spacing_deg`` (level solvers attach the
+    def _information_level(self, geoms: tuple[LevelGeometry, ...]) -> int:
+        """Index of the level whose beam spacing is closest to ``degeneracy_spacing_deg`` (level solvers attach the
         geometric information there)."""
         if self._info_cache[0] is not geoms:
             target = math.radians(self.config.degeneracy_spacing_deg)
             best = min(range(len(geoms)), key=lambda lv: abs(float(np.median(geoms[lv].spacing_rad)) - target))
-            self._info_cache = (geoms, geoms[best], best)
+            self._info_cache = (geoms, best)
         return self._info_cache[1]
 
     def _covariance(self, alignment: Alignment) -> tuple[np.ndarray, bool]:

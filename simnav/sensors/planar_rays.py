@@ -80,8 +80,8 @@ def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, g
             if r < 0.0:
                 return False
             if r > 0.0:
-                count = _put(sections, count, (CIRCLE, float(g), geom_xpos[g, 0], geom_xpos[g, 1], r, 0.0, 0.0, 0.0, 0.0,
-                                               0.0))
+                row = (CIRCLE, float(g), geom_xpos[g, 0], geom_xpos[g, 1], r, 0.0, 0.0, 0.0, 0.0, 0.0)
+                count = _put(sections, count, row)
         elif abs(m8) <= VERTICAL_TOL:
             count = _lying_sections(origin[0], origin[1], t, geom_xpos[g], geom_xmat[g], geom_size[g], dz, g,
                                     sections, count)
@@ -126,8 +126,8 @@ def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: 
     count = _put(sections, count, (RECT, float(g), pos[0], pos[1], ux, uy, -uy, ux, half, w))
     if geom_type == CAPSULE:
         for end in (-half, half):
-            count = _put(sections, count, (CIRCLE, float(g), pos[0] + end * ux, pos[1] + end * uy, w, 0.0, 0.0, 0.0, 0.0,
-                                           0.0))
+            row = (CIRCLE, float(g), pos[0] + end * ux, pos[1] + end * uy, w, 0.0, 0.0, 0.0, 0.0, 0.0)
+            count = _put(sections, count, row)
     return count
 
 
