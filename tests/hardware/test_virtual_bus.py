@@ -128,8 +128,10 @@ def test_status_return_level_silences_replies(bus, port):
 def test_registered_write_waits_for_action(bus, port):
     assert PH.regWriteTxRx(port, 2, ct.ADDR_LED, 1, [1]) == (COMM_SUCCESS, 0)
     assert bus.register(2, ct.ADDR_LED) == 0 and bus.register(2, ct.ADDR_REGISTERED) == 1
+    # the SDK sends ACTION without waiting for its status packet: the bus carries it out when it reads it
     assert PH.action(port, 2) == COMM_SUCCESS
-    assert bus.register(2, ct.ADDR_LED) == 1 and bus.register(2, ct.ADDR_REGISTERED) == 0
+    wait_until(lambda: bus.register(2, ct.ADDR_LED) == 1, what="the registered LED write applied")
+    assert bus.register(2, ct.ADDR_REGISTERED) == 0
     assert PH.txRxPacket(port, [0] * 4 + [1, 3, 0, 0x7F] + [0, 0])[1:] == (COMM_SUCCESS, ErrorCode.INSTRUCTION)
 
 
