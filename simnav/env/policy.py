@@ -83,9 +83,9 @@ class PTGPolicy:
         self.obstacles.add(self._scan(obs["lidar"]), self.T_odom_base)
         if self._camera is not None and "depth" in obs:
             self.obstacles.add(self._depth(obs["depth"]), self.T_odom_base)
-        points_base = self.obstacles.points_base(self.time_s, self.T_odom_base)
+        points_base, scan_points_base = self.obstacles.split_points_base(self.time_s, self.T_odom_base)
         # One navigator step, then the command as an action
-        cmd = self.navigator.step(self.time_s, self.T_odom_base, points_base)
+        cmd = self.navigator.step(self.time_s, self.T_odom_base, points_base, scan_points_base)
         self.last_command = cmd
         return np.array([np.clip(cmd.v_m_s / self.max_v_m_s, -1, 1), np.clip(cmd.w_rad_s / self.max_w_rad_s, -1, 1)],
                         dtype=np.float32)

@@ -1,14 +1,16 @@
 """``simnav mission``: a robot navigates to random roadmap targets among people, headless, and reports how it went.
 
-As in §6.C.7, targets are drawn at random from the world's roadmap; the route to each is the roadmap's shortest
-path, handed to the 3D-PTG navigator as waypoints that it follows without stopping. The navigator sees every
-range sensor of the robot (lidars, 3D lidars, depth cameras) and uses the pose of the chosen source (ground truth,
-or an odometry anchored at the true start). A robot that has not come closer to its target for 30 s is
-*stuck*: that counts as an intervention and the robot is moved to the next roadmap node of its route, as a person
-would. Contacts with walls, furniture, doors and people are the minor incidents of Table 6.1.
+As in §6.C.7, targets are drawn at random from the world's roadmap (not in doorways); the route to each is the
+roadmap's shortest path, handed to the 3D-PTG navigator as waypoints that it follows without stopping (doorways are
+passed through, lined up before them: :func:`route_waypoints`). The navigator sees every range sensor of the
+robot (lidars, 3D lidars, depth cameras) and uses the pose of the chosen source (ground truth, or an odometry
+anchored at the true start). A robot that has not come closer to its target for 30 s is *stuck*: that counts as
+an intervention and the robot is moved to the next roadmap node of its route, as a person would. Contacts with
+walls, furniture, doors and people are the minor incidents of Table 6.1.
 
 Output folder (``--out``): ``report.json`` (schema in the README), ``trajectory_gt.txt`` and
-``trajectory_est.txt`` (TUM), ``mission.png`` (top view: map, path, targets, incidents) and the settings.
+``trajectory_est.txt`` (TUM), ``mission.png`` (top view: map, path, targets, incidents), ``navigation.csv`` (the
+navigator's decision at every control step) and the settings.
 """
 
 from __future__ import annotations
@@ -55,6 +57,11 @@ NARROW_NODE_CLEARANCE_M = 0.75
 
 NARROW_NODE_TOLERANCE_M = 0.3
 """... within this distance, m."""
+
+DOOR_APPROACH_M = 0.6
+"""A narrow node is approached through a waypoint this far before it, towards the previous node of the route (and
+left through one as far after it), so that the robot lines up with a doorway instead of cutting into it at an
+angle, m (at most half the distance to that node)."""
 
 
 class MissionSettings(FrozenModel):
@@ -118,6 +125,7 @@ class MissionReport:
     min_clearance_m: float = float("inf")
     path_length_ratio: float = float("nan")
     navigator_step_ms: dict = field(default_factory=lambda: {"median": 0.0, "p95": 0.0})
+    state_time_s: dict = field(default_factory=dict)
     real_time_factor: float = 0.0
     wall_time_s: float = 0.0
     odometry: dict | None = None
@@ -206,6 +214,7 @@ class _MissionRunner:
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
+        self._nav_log: list[tuple] = []  # one row per control step (see NAV_LOG_COLUMNS)
         self._speeds: list[float] = []
         self._settle_steps = 0
 
@@ -280,17 +289,20 @@ class _MissionRunner:
         # Navigate from the estimated pose
         now = self.robot.now_s()
         T_est = self.pose.T_world_base(T_true)
-        points_base = self.obstacles.points_base(now, T_est)
-        cmd = self.nav.step(now, T_est, points_base)
+        points_base, scan_points_base = self.obstacles.split_points_base(now, T_est)
+        cmd = self.nav.step(now, T_est, points_base, scan_points_base)
         self._step_times.append(cmd.runtime_s)
-        self._last_step = (T_est, points_base, readings)
+        self._nav_log.append((now, *se2.to_xy_yaw(T_true), cmd.v_m_s, cmd.w_rad_s, cmd.state, cmd.target_index,
+                              cmd.ptg, cmd.path_index, cmd.free_distance, cmd.speed))
+        self._last_step = (T_est, points_base, scan_points_base, readings)
         self.robot.send_velocity(cmd.v_m_s, cmd.w_rad_s)
         self.robot.wait_next_period()
         return cmd
 
     def _frame(self, cmd) -> MissionFrame:
-        T_est, points_base, readings = self._last_step
-        return MissionFrame(self.sim.time_s, self._true_pose(), T_est, cmd, readings, points_base, self._route_xy)
+        T_est, points_base, scan_points_base, readings = self._last_step
+        return MissionFrame(self.sim.time_s, self._true_pose(), T_est, cmd, readings,
+                            np.concatenate([points_base, scan_points_base]), self._route_xy)
 
     # ---------------------------------------------------------------------------------------------- targets
     def _new_target(self) -> list[int]:
@@ -298,7 +310,7 @@ class _MissionRunner:
         graph = self.sim.roadmap
         xy = self._true_pose()[:2, 2]
         start = graph.nearest_node(xy)
-        node = graph.random_node(self.rng, exclude=start)
+        node = self._random_target(start)
         route = graph.shortest_path(start, node)
         shortest = float(np.linalg.norm(graph.nodes_xy[route[0]] - xy)) + graph.path_length_m(route)
         target = graph.nodes_xy[node]
@@ -309,13 +321,21 @@ class _MissionRunner:
         self._follow(route)
         return route
 
+    def _random_target(self, start: int) -> int:
+        """A roadmap node other than ``start`` to go to, drawn uniformly; not a narrow one (a doorway is no place
+        to stand) unless every node is narrow."""
+        candidates = np.nonzero(~self._narrow)[0]
+        candidates = candidates[candidates != start]
+        if len(candidates) == 0:
+            return self.sim.roadmap.random_node(self.rng, exclude=start)
+        return int(candidates[self.rng.integers(len(candidates))])
+
     def _follow(self, route: list[int]) -> None:
-        """Hand a roadmap route to the navigator; narrow nodes (doorways) must be passed through."""
-        narrow = self._narrow[route]
-        self._route_xy = self.sim.roadmap.nodes_xy[route].copy()
-        self.nav.set_waypoints(self.sim.roadmap.nodes_xy[route], allow_skip=~narrow,
-                               allowed_distance_m=np.where(narrow, NARROW_NODE_TOLERANCE_M,
-                                                           self.nav.config.waypoint_allowed_distance_m))
+        """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
+        xy, skip, near = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
+                                         self.nav.config.waypoint_allowed_distance_m)
+        self._route_xy = xy
+        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near)
 
     def _close_target(self, row, reached: bool) -> None:
         row.reached = reached
@@ -395,6 +415,7 @@ class _MissionRunner:
         ms = np.array(self._step_times) * 1e3
         r.navigator_step_ms = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95))} if len(ms) else \
             {"median": 0.0, "p95": 0.0}
+        r.state_time_s = self._state_times()
         ratios = [t.path_length_ratio for t in r.targets if math.isfinite(t.path_length_ratio)]
         r.path_length_ratio = float(np.mean(ratios)) if ratios else float("nan")
         self._count_incidents()
@@ -402,6 +423,15 @@ class _MissionRunner:
             r.odometry = self._odometry_drift()
         if self.out_dir is not None:
             self._write()
+
+    def _state_times(self) -> dict:
+        """Simulated time the navigator spent in each state, s (each step counts until the next one)."""
+        times: dict[str, float] = {}
+        rows = self._nav_log
+        for row, nxt in zip(rows, rows[1:] + [None], strict=True):
+            dt = (nxt[0] if nxt is not None else self.sim.time_s) - row[0]
+            times[row[6]] = times.get(row[6], 0.0) + max(dt, 0.0)
+        return {state: round(t, 3) for state, t in sorted(times.items())}
 
     def _count_incidents(self) -> None:
         """Contacts merged per body within ``INCIDENT_MERGE_S``, sorted into static / door / people / robots."""
@@ -472,8 +502,67 @@ class _MissionRunner:
                          [(t, se2.from_se3(T)) for t, T in self._gt]):
                 w.write(t, se2.to_se3(T))
         (out / "report.json").write_text(self.report.to_json() + "\n")
+        _write_nav_log(out / "navigation.csv", self._nav_log)
         plot_mission(self.sim.world, self.sim.roadmap, np.array([T[:2, 3] for _, T in self._gt]), self.report,
                      out / "mission.png")
+
+
+NAV_LOG_COLUMNS = ("time_s", "x_m", "y_m", "yaw_rad", "v_m_s", "w_rad_s", "state", "target_index", "ptg", "path",
+                   "free_distance", "speed")
+"""Columns of ``navigation.csv``: one row per control step; the true pose of the base in the world, the command and
+what the navigator decided (:class:`~simnav.navigation.navigator.NavCommand`)."""
+
+
+def _write_nav_log(path: Path, rows: list[tuple]) -> None:
+    import csv
+
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(NAV_LOG_COLUMNS)
+        for row in rows:
+            writer.writerow([f"{x:.6g}" if isinstance(x, float) else x for x in row])
+
+
+def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray,
+                    free_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
+    ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
+    previous node, also to be passed) and one as far after them (towards the next node, skippable); other nodes may
+    be cut once a later waypoint is reachable and count as passed within ``free_m``.
+
+    Args:
+        nodes_xy: (N, 2) roadmap nodes, m.
+        route: node indices in order.
+        narrow: (N,) which nodes are narrow.
+        free_m: allowed distance of the other nodes, m.
+
+    Returns:
+        (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m).
+    """
+    xy, skip, near = [], [], []
+
+    def add(p: np.ndarray, may_skip: bool, allowed_m: float) -> None:
+        xy.append(p)
+        skip.append(may_skip)
+        near.append(allowed_m)
+
+    for i, node in enumerate(route):
+        p = nodes_xy[node]
+        if not narrow[node]:
+            add(p, True, free_m)
+            continue
+        if i > 0:
+            add(_towards(p, nodes_xy[route[i - 1]]), False, NARROW_NODE_TOLERANCE_M)
+        add(p, False, NARROW_NODE_TOLERANCE_M)
+        if i < len(route) - 1:
+            add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
+    return np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near)
+
+
+def _towards(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The point ``DOOR_APPROACH_M`` from p towards q (at most half way), m."""
+    d = float(np.linalg.norm(q - p))
+    return p + (q - p) * (min(DOOR_APPROACH_M, 0.5 * d) / d) if d > 0 else p.copy()
 
 
 def _incident_kind(kind: str, other: str) -> str:

@@ -6,6 +6,13 @@ odom frame (log-odds, 0 = unknown): cells hit by the band's points gain evidence
 robot beyond the blind range that got no hit lose it, and all evidence decays towards unknown with a time
 constant. Occupied cells near the robot come back as *virtual obstacles* that join the sensed points.
 
+Points of a level 2D lidar (given apart, *scan points*) are ends of rays in the lidar's plane, so the space before
+them was seen free: a cell whose evidence came only from scan points also loses it when it lies closer to the base
+than the nearest scan point of its band in the same direction (``ray_bin_rad`` wide) by ``ray_margin_m`` (rays are
+taken to start at the base origin). A person who walks around the robot then leaves no ring of remembered
+obstacles behind for the seconds of the decay; a cell any other sensor hit (a low box below the scan plane, a bar
+above it) keeps its evidence until it decays.
+
 As §6.C.7 reports, the memory carries the pose estimate's errors into the obstacles; with a drifting odometry
 it can close gaps the robot would fit through, so it can be switched off (``NavigatorConfig.memory``).
 """
@@ -35,6 +42,8 @@ class MemoryConfig:
         cone_half_angle_rad: half angle of the cone ahead where cells without hits are seen free, rad.
         cone_range_m: reach of that cone, m.
         emit_range_m: occupied cells closer than this to the base origin become virtual obstacles, m.
+        ray_bin_rad: angular width of the directions in which the nearest scan point is looked up, rad.
+        ray_margin_m: a cell counts as seen free by the scan only this much closer than that point, m.
     """
 
     cell_m: float = 0.04
@@ -47,13 +56,17 @@ class MemoryConfig:
     cone_half_angle_rad: float = math.pi / 6 - 0.05
     cone_range_m: float = 1.2
     emit_range_m: float = 0.7
+    ray_bin_rad: float = math.radians(2.0)
+    ray_margin_m: float = 0.1
 
     def __post_init__(self) -> None:
         checks = [(self.cell_m > 0, "cell_m must be > 0"), (self.half_size_m > self.cell_m, "half_size_m > cell_m"),
                   (0.5 < self.hit_probability < 1, "hit_probability must be in (0.5, 1)"),
                   (0 < self.miss_probability < 0.5, "miss_probability must be in (0, 0.5)"),
                   (0.5 < self.occupied_probability < 1, "occupied_probability must be in (0.5, 1)"),
-                  (self.decay_s > 0, "decay_s must be > 0")]
+                  (self.decay_s > 0, "decay_s must be > 0"),
+                  (0 < self.ray_bin_rad <= math.pi / 4, "ray_bin_rad must be in (0, pi/4]"),
+                  (self.ray_margin_m >= 0, "ray_margin_m must be >= 0")]
         for ok, message in checks:
             if not ok:
                 raise ValueError(f"MemoryConfig: {message}")
@@ -81,17 +94,20 @@ class ShortTermMemory:
         self._grids = np.zeros((num_bands, self._n, self._n), dtype=np.float32)
         self._keys = np.full((self._n, self._n, 2), _NO_CELL, dtype=np.int64)  # odom cell held by each slot
         self._hit_step = np.zeros((num_bands, self._n, self._n), dtype=np.int64)
+        self._scan_only = np.zeros((num_bands, self._n, self._n), dtype=np.bool_)  # evidence from scan points only
         self._step = 0
         self._last_stamp_s: float | None = None
         cfg = self.config
         self._params = np.array([cfg.cell_m, cfg.blind_range_m, cfg.cone_range_m, math.cos(cfg.cone_half_angle_rad),
                                  cfg.emit_range_m, _logit(cfg.hit_probability), _logit(cfg.miss_probability),
-                                 2 * _logit(0.98), _logit(cfg.occupied_probability) + 1e-6])
+                                 2 * _logit(0.98), _logit(cfg.occupied_probability) + 1e-6,
+                                 cfg.ray_bin_rad, cfg.ray_margin_m])
 
     def reset(self) -> None:
         """Forget everything."""
         self._grids[:] = 0.0
         self._keys[:] = _NO_CELL
+        self._scan_only[:] = False
         self._last_stamp_s = None
 
     def update(self, stamp_s: float, T_odom_base: np.ndarray,
@@ -114,18 +130,23 @@ class ShortTermMemory:
         out, out_ptr = self.update_flat(stamp_s, T_odom_base, xy, ptr)
         return [out[out_ptr[b]:out_ptr[b + 1]] for b in range(len(pts))]
 
-    def update_flat(self, stamp_s: float, T_odom_base: np.ndarray, xy: np.ndarray,
-                    ptr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`update` on flat arrays: band b's points are ``xy[ptr[b]:ptr[b + 1]]`` (base frame, m); returns the
+    def update_flat(self, stamp_s: float, T_odom_base: np.ndarray, xy: np.ndarray, ptr: np.ndarray,
+                    scan_xy: np.ndarray | None = None,
+                    scan_ptr: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`update` on flat arrays: band b's points are ``xy[ptr[b]:ptr[b + 1]]`` (base frame, m), its scan
+        points (a level 2D lidar's, not also in ``xy``) ``scan_xy[scan_ptr[b]:scan_ptr[b + 1]]``; returns the
         virtual obstacles the same way, (Q, 2) and (B + 1,)."""
+        if scan_xy is None or scan_ptr is None:
+            scan_xy, scan_ptr = np.zeros((0, 2)), np.zeros(len(ptr), dtype=np.int64)
         decay = 1.0
         if self._last_stamp_s is not None:
             decay = math.exp(-max(stamp_s - self._last_stamp_s, 0.0) / self.config.decay_s)
         self._last_stamp_s = stamp_s
         self._step += 1
-        return _update_kernel(self._grids, self._keys, self._hit_step, self._step,
+        return _update_kernel(self._grids, self._keys, self._hit_step, self._scan_only, self._step,
                               np.ascontiguousarray(T_odom_base, dtype=np.float64),
                               np.ascontiguousarray(xy, dtype=np.float64), np.asarray(ptr, dtype=np.int64),
+                              np.ascontiguousarray(scan_xy, dtype=np.float64), np.asarray(scan_ptr, dtype=np.int64),
                               np.float32(decay), self._params)
 
 
@@ -134,16 +155,32 @@ _NO_CELL = np.iinfo(np.int64).min
 
 
 @njit(cache=True)
-def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, step: int, T: np.ndarray,
-                   xy: np.ndarray, ptr: np.ndarray, decay: np.float32,
-                   params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One memory update: decay, window follows the robot, hits, free cone, virtual obstacles (flat per band)."""
+def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, scan_only: np.ndarray, step: int,
+                   T: np.ndarray, xy: np.ndarray, ptr: np.ndarray, scan_xy: np.ndarray, scan_ptr: np.ndarray,
+                   decay: np.float32, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One memory update: decay, window follows the robot, hits, free space, virtual obstacles (flat per band)."""
     cell, blind, cone_range, cos_cone, emit_range = params[0], params[1], params[2], params[3], params[4]
     hit_l, miss_l, limit, occupied = np.float32(params[5]), np.float32(params[6]), np.float32(params[7]), params[8]
+    ray_bin, ray_margin = params[9], params[10]
     n_bands, n = grids.shape[0], grids.shape[1]
     c, s, tx, ty = T[0, 0], T[1, 0], T[0, 2], T[1, 2]
     ox, oy = int(math.floor(tx / cell)) - n // 2, int(math.floor(ty / cell)) - n // 2  # odom cell of window (0, 0)
-    # Hits: mark the slots of the cells the bands' points fall in
+    # Hits: scan points first (their cells' evidence is the scan's, and the nearest per direction bounds the free
+    # space), then the other points (whose cells' evidence is not only the scan's)
+    n_dirs = int(math.ceil(2.0 * math.pi / ray_bin))
+    nearest = np.full((n_bands, n_dirs), -1.0)  # -1: no scan point in that direction
+    for b in range(n_bands):
+        for k in range(scan_ptr[b], scan_ptr[b + 1]):
+            px, py = scan_xy[k, 0], scan_xy[k, 1]
+            i = int(math.floor((c * px - s * py + tx) / cell)) - ox
+            j = int(math.floor((s * px + c * py + ty) / cell)) - oy
+            if 0 <= i < n and 0 <= j < n:
+                hit_step[b, (ox + i) % n, (oy + j) % n] = step
+                scan_only[b, (ox + i) % n, (oy + j) % n] = True
+            q = min(int((math.atan2(py, px) + math.pi) / ray_bin), n_dirs - 1)
+            r = math.hypot(px, py)
+            if nearest[b, q] < 0 or r < nearest[b, q]:
+                nearest[b, q] = r
     for b in range(n_bands):
         for k in range(ptr[b], ptr[b + 1]):
             px, py = xy[k, 0], xy[k, 1]
@@ -151,6 +188,7 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, st
             j = int(math.floor((s * px + c * py + ty) / cell)) - oy
             if 0 <= i < n and 0 <= j < n:
                 hit_step[b, (ox + i) % n, (oy + j) % n] = step
+                scan_only[b, (ox + i) % n, (oy + j) % n] = False
     # Window pass: recycle slots of cells that left, decay, free-space cone, hits, clip, emit occupied cells
     out = np.empty((n_bands, n * n, 2))
     count = np.zeros(n_bands, dtype=np.int64)
@@ -167,11 +205,14 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, st
             rng = math.hypot(rx, ry)
             in_cone = blind < rng < cone_range and rx > rng * cos_cone
             emit = rng < emit_range
+            q = min(int((math.atan2(ry, rx) + math.pi) / ray_bin), n_dirs - 1)
             for b in range(n_bands):
+                if fresh and hit_step[b, si, sj] != step:
+                    scan_only[b, si, sj] = False  # a cell new to the window: no evidence yet
                 g = np.float32(0.0) if fresh else grids[b, si, sj] * decay
                 if hit_step[b, si, sj] == step:
                     g += hit_l
-                elif in_cone:
+                elif in_cone or (scan_only[b, si, sj] and rng < nearest[b, q] - ray_margin):
                     g += miss_l
                 g = min(max(g, -limit), limit)
                 grids[b, si, sj] = g

@@ -12,9 +12,12 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
 5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
    approach to the final target, then limited in acceleration.
 
-When every path is blocked the robot backs away slowly for a few seconds if the space behind is free, then stops
-and waits (§6.C.6); it backs only onto the path it drove along. A target whose distance has not improved for
-``stuck_timeout_s`` marks the navigator stuck.
+When no path of any family reaches the target (a wall close ahead, the target to the side or behind) and the
+target lies more than ``turn_in_place_start_rad`` off the heading, the robot turns in place towards it if nothing
+is within its turning circle: every PTG path moves forward while it turns, so close to a wall the secure distance
+stops them all. When every path is blocked the robot backs away slowly for a few seconds if the space behind is
+free, then stops and waits (§6.C.6); it backs only onto the path it drove along. A target whose distance has not
+improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
 
@@ -34,7 +37,7 @@ from simnav.navigation.binning import effective_obstacle_distance, merge_bands, 
 from simnav.navigation.holonomic import HolonomicInput
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 
-STATES = ("idle", "navigating", "reached", "blocked", "recovering", "waiting")
+STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,13 @@ class NavigatorConfig:
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
         recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
             many seconds: the sensors see little behind the robot, the path it came along was free, s.
+        turn_in_place: turn in place towards a target that no path reaches (see the module doc).
+        turn_in_place_start_rad: ... when the target lies further than this off the heading, rad.
+        turn_in_place_stop_rad: ... until it lies within this, or a path reaches it, rad.
+        turn_in_place_retry_s: after turning in place, the robot turns in place again only once it has moved
+            ``turn_in_place_retry_m`` or after this long: when the paths the holonomic method picks turn away from
+            the target, they keep the lead for a while instead of the two taking turns for ever, s.
+        turn_in_place_retry_m: ... or once it has moved this far, m.
         stuck_timeout_s: the navigator reports ``stuck`` when the distance to the waypoint it aims at has not
             improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
         stuck_progress_m: progress that resets the stuck timer, m.
@@ -113,6 +123,11 @@ class NavigatorConfig:
     recovery_duration_s: float = 3.0
     recovery_clearance_m: float = 0.3
     recovery_trail_s: float = 20.0
+    turn_in_place: bool = True
+    turn_in_place_start_rad: float = math.radians(60.0)
+    turn_in_place_stop_rad: float = math.radians(15.0)
+    turn_in_place_retry_s: float = 10.0
+    turn_in_place_retry_m: float = 0.3
     stuck_timeout_s: float = 30.0
     stuck_progress_m: float = 0.2
     blocked_check_m: float = 2.0
@@ -133,6 +148,10 @@ class NavigatorConfig:
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
+            (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
+             "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
+            (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,
+             "turn_in_place_retry_s and turn_in_place_retry_m must be >= 0"),
         ]
         for ok, message in checks:
             if not ok:
@@ -146,7 +165,7 @@ class NavCommand:
     Attributes:
         v_m_s: forward speed command, m/s.
         w_rad_s: yaw rate command, rad/s.
-        state: one of ``STATES``.
+        state: one of ``STATES`` (``turning``: turning in place towards the target).
         stuck: True when the target has not come closer for ``stuck_timeout_s``.
         target_index: index of the waypoint being aimed at, -1 when idle.
         ptg: name of the chosen path family ('' when none).
@@ -208,6 +227,8 @@ class ReactiveNavigator3D:
         self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
         self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
+        self._turn_radii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1])))
+                                       + cfg.footprint_margin_m for b in self.bands])
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
         self.reset()
 
@@ -224,6 +245,8 @@ class ReactiveNavigator3D:
         self._blocked_since_s: float | None = None
         self._progress_target = -1
         self._goal_blocked_steps = 0
+        self._turning = False
+        self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
         self._trail: deque[tuple[float, float, float, float]] = deque()  # (stamp, x, y, yaw) of recent poses
         for method in getattr(self, "_holonomic", []):
             method.reset()
@@ -253,6 +276,7 @@ class ReactiveNavigator3D:
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = None
+        self._turning, self._turn_end = False, None
 
     def set_target(self, target_xy: Sequence[float]) -> None:
         """Go to one target (fixed frame, m)."""
@@ -263,13 +287,17 @@ class ReactiveNavigator3D:
         return len(self._waypoints) > 0 and self._target >= len(self._waypoints)
 
     # ------------------------------------------------------------------------------------------------ step
-    def step(self, stamp_s: float, T_odom_base: np.ndarray, points_base: np.ndarray) -> NavCommand:
+    def step(self, stamp_s: float, T_odom_base: np.ndarray, points_base: np.ndarray,
+             scan_points_base: np.ndarray | None = None) -> NavCommand:
         """One navigation step.
 
         Args:
             stamp_s: time, s.
             T_odom_base: (3, 3) SE(2) pose of the base in the frame of the waypoints.
             points_base: (P, 3) obstacle points in the base frame, m (every range sensor; floor points allowed).
+            scan_points_base: (S, 3) further obstacle points that are a level 2D lidar's (not also in
+                ``points_base``), m: the short-term memory also takes the space before them as seen free
+                (:meth:`simnav.navigation.sensing.SensedObstacles.split_points_base` gives both).
 
         Returns:
             The velocity command and what the navigator decided.
@@ -287,8 +315,14 @@ class ReactiveNavigator3D:
         cfg = self.config
         n_bands = len(self.bands)
         xy, ptr = sort_into_bands_flat(points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
+        scan_xy = scan_ptr = None
+        if scan_points_base is not None and len(scan_points_base):
+            scan_xy, scan_ptr = sort_into_bands_flat(scan_points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
         if self._memory is not None:
-            virtual_xy, virtual_ptr = self._memory.update_flat(stamp_s, T_odom_base, xy, ptr)
+            virtual_xy, virtual_ptr = self._memory.update_flat(stamp_s, T_odom_base, xy, ptr, scan_xy, scan_ptr)
+        if scan_xy is not None:
+            xy, ptr = merge_bands(xy, ptr, scan_xy, scan_ptr)
+        if self._memory is not None:
             if len(virtual_xy):
                 xy, ptr = merge_bands(xy, ptr, virtual_xy, virtual_ptr)
         band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
@@ -310,7 +344,13 @@ class ReactiveNavigator3D:
         if self._goal_is_blocked(T_odom_base, near_band_xy):
             return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
-        best = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
+        best, direct = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
+        # No path reaches a target far off the heading: turn in place towards it if the turning circle is free
+        if self._should_turn(stamp_s, T_odom_base, target_base, direct, xy, ptr):
+            self._blocked_since_s = None
+            w = math.copysign(self.max_w_rad_s, float(target_base[1]))
+            w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
+            return self._output(0.0, w, dt, t0, "turning", target_index)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
         if best is None or best.speed <= 0.0 or recovering:
             return self._recover(stamp_s, dt, t0, T_odom_base, band_xy, target_index)
@@ -379,11 +419,16 @@ class ReactiveNavigator3D:
             self._best_distance, self._best_distance_stamp_s = d, stamp_s
 
     # ------------------------------------------------------------------------------------------ candidates
-    def _best_candidate(self, target_base: np.ndarray, limits: list[np.ndarray], final: bool) -> _Candidate | None:
+    def _best_candidate(self, target_base: np.ndarray, limits: list[np.ndarray],
+                        final: bool) -> tuple[_Candidate | None, bool]:
+        """The best candidate (None when every PTG is blocked) and whether some PTG's path to the target is free
+        all the way to it (or to the horizon)."""
         cfg = self.config
         best: _Candidate | None = None
+        direct = False
         for i, (space, lim) in enumerate(zip(self._spaces, limits, strict=True)):
             k_t, d_t, _ = space.inverse_map(float(target_base[0]), float(target_base[1]))
+            direct = direct or float(lim[k_t]) >= min(d_t + 0.01, 1.0)
             decision = self._holonomic[i].navigate(HolonomicInput.toward_path(
                 lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m, slow_down_near_target=final))
             k, speed = int(decision.direction_k), float(decision.speed)
@@ -395,7 +440,31 @@ class ReactiveNavigator3D:
             score = self._score(space, k, free, k_t, d_t, target_base)
             if best is None or score > best.score:
                 best = _Candidate(i, k, speed, free, score)
-        return best
+        return best, direct
+
+    def _should_turn(self, stamp_s: float, T_odom_base: np.ndarray, target_base: np.ndarray, direct: bool,
+                     xy: np.ndarray, ptr: np.ndarray) -> bool:
+        """Turn in place: no path reaches the target, it lies beyond ``turn_in_place_start_rad`` off the heading
+        (once turning: beyond ``turn_in_place_stop_rad``), no obstacle of any band is within the band's turning
+        circle (its section's circumradius plus the footprint margin) and, to start, the last turn in place is
+        ``turn_in_place_retry_s`` or ``turn_in_place_retry_m`` away."""
+        cfg = self.config
+        x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
+        if not cfg.turn_in_place:
+            return False
+        if not self._turning and self._turn_end is not None:
+            t_end, x_end, y_end = self._turn_end
+            if stamp_s - t_end < cfg.turn_in_place_retry_s and math.hypot(x - x_end, y - y_end) < \
+                    cfg.turn_in_place_retry_m:
+                return False
+        bearing = abs(math.atan2(float(target_base[1]), float(target_base[0])))
+        threshold = cfg.turn_in_place_stop_rad if self._turning else cfg.turn_in_place_start_rad
+        turning = (not direct and bearing > threshold
+                   and len(points_near(xy, ptr, 0.0, 0.0, self._turn_radii_m)[0]) == 0)
+        if self._turning and not turning:
+            self._turn_end = (stamp_s, x, y)
+        self._turning = turning
+        return turning
 
     def _score(self, space, k: int, free: float, k_t: int, d_t: float, target_base: np.ndarray) -> float:
         """Eq. 6.5 with the factors of §6.C.5 (as MRPT's scalarisation: larger is better)."""

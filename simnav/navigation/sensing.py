@@ -3,10 +3,13 @@
 Lidars, 3D lidars and depth cameras run at their own rates; the navigator runs at the control rate. The latest
 reading of each sensor is kept with the pose it was taken at; at every step the points are moved into the current
 base frame with the motion since then, so that a 10 Hz scan taken 80 ms ago still sits where the obstacles are.
+The points of level 2D lidars (*scan points*) can be had apart: they are ends of rays in the lidar's plane, which
+the navigator's short-term memory uses as evidence of free space.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +31,15 @@ class SensingConfig:
     depth_stride: int = 4
     max_age_s: float = 0.5
     max_range_m: float = 8.0
+
+
+LEVEL_SCAN_TILT_RAD = math.radians(2.0)
+"""A 2D lidar whose scan plane is tilted at most this much from the floor (upright or upside down) is level."""
+
+
+def is_level_scan(reading: Reading) -> bool:
+    """Whether a reading is a 2D lidar scan whose plane is level in the base frame."""
+    return isinstance(reading, LaserScan) and abs(reading.T_base_sensor[2, 2]) >= math.cos(LEVEL_SCAN_TILT_RAD)
 
 
 def reading_points_base(reading: Reading, config: SensingConfig = SensingConfig()) -> np.ndarray | None:
@@ -67,19 +79,28 @@ class SensedObstacles:
     def __init__(self, config: SensingConfig = SensingConfig()) -> None:
         self.config = config
         self._latest: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+        self._level_scans: set[str] = set()
 
     def reset(self) -> None:
         self._latest.clear()
+        self._level_scans.clear()
 
     def add(self, reading: Reading, T_odom_base_at_stamp: np.ndarray) -> None:
         """Keep a reading's points with the (3, 3) SE(2) base pose at its stamp (in any fixed frame)."""
         pts = reading_points_base(reading, self.config)
         if pts is not None:
             self._latest[reading.sensor] = (reading.stamp_s, np.asarray(T_odom_base_at_stamp, dtype=np.float64), pts)
+            if is_level_scan(reading):
+                self._level_scans.add(reading.sensor)
 
     def points_base(self, now_s: float, T_odom_base_now: np.ndarray) -> np.ndarray:
         """(P, 3) all kept points in the base frame at ``now_s``, given the current pose in the same fixed frame."""
-        clouds = []
+        other, scans = self.split_points_base(now_s, T_odom_base_now)
+        return np.concatenate([other, scans]) if len(scans) else other
+
+    def split_points_base(self, now_s: float, T_odom_base_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`points_base` as (P, 3) points of every other sensor and (S, 3) scan points of level 2D lidars."""
+        clouds, scans = [], []
         T_base_odom = se2.inverse(T_odom_base_now)
         for sensor, (stamp, T_then, pts) in list(self._latest.items()):
             if now_s - stamp > self.config.max_age_s:
@@ -87,5 +108,6 @@ class SensedObstacles:
                 continue
             T = T_base_odom @ T_then  # base at the stamp, seen from the base now
             xy = pts[:, :2] @ T[:2, :2].T + T[:2, 2]
-            clouds.append(np.column_stack([xy, pts[:, 2]]))
-        return np.concatenate(clouds) if clouds else np.zeros((0, 3))
+            (scans if sensor in self._level_scans else clouds).append(np.column_stack([xy, pts[:, 2]]))
+        return (np.concatenate(clouds) if clouds else np.zeros((0, 3)),
+                np.concatenate(scans) if scans else np.zeros((0, 3)))

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from simnav.io import read_tum
-from simnav.mission.mission import MissionSettings, mission_robot, run_mission
+from simnav.mission.mission import NAV_LOG_COLUMNS, MissionSettings, mission_robot, run_mission
+from simnav.navigation.navigator import STATES
 from simnav.robot import load_robot
 from simnav.world import load_world
 
@@ -18,7 +19,8 @@ QUIET = ["--world", "polygonal", "--agents", "0", "--robots", "0", "--targets", 
 REPORT_KEYS = {"simnav_version", "world", "robot", "seed", "nav", "pose_source", "people", "targets_requested",
                "targets_reached", "success_rate", "distance_m", "duration_s", "avg_speed_m_s", "max_speed_m_s",
                "minor_incidents", "interventions", "min_clearance_m", "path_length_ratio", "navigator_step_ms",
-               "real_time_factor", "wall_time_s", "odometry", "targets", "incidents", "intervention_log"}
+               "real_time_factor", "wall_time_s", "odometry", "targets", "incidents", "intervention_log",
+               "state_time_s"}
 
 
 def simnav(*args: str) -> subprocess.CompletedProcess:
@@ -43,6 +45,13 @@ def test_a_short_mission_writes_a_valid_report_trajectories_and_plot(tmp_path):
     assert len(read_tum(out / "trajectory_est.txt")) == len(gt)
     assert (out / "mission.png").stat().st_size > 10_000
     assert "targets reached" in result.stdout
+    # the navigator's log: a row per control step, and the time per state adds up to the mission's
+    log = np.genfromtxt(out / "navigation.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert set(NAV_LOG_COLUMNS) == set(log.dtype.names) and len(log) == len(gt) - 1
+    assert {"navigating", "reached"} <= set(log["state"]) <= set(STATES)
+    assert np.allclose(np.column_stack([log["x_m"], log["y_m"]])[0], gt.T[0][:2, 3], atol=1e-4)
+    assert sum(report["state_time_s"].values()) == pytest.approx(report["duration_s"], abs=0.06)
+    assert report["state_time_s"]["navigating"] > 0.5 * report["duration_s"]
 
 
 def test_the_same_seed_gives_the_same_mission():
@@ -146,3 +155,20 @@ def test_observers_see_every_step_and_the_robot_factory_drives_the_mission():
     assert last.points_base.ndim == 2 and last.points_base.shape[1] == 3
     assert sum(len(f.readings) for f in frames) > len(frames)  # lidar, wheels, ...
     assert any(f.command.state == "navigating" for f in frames)
+
+
+def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
+    from simnav.mission.mission import DOOR_APPROACH_M, NARROW_NODE_TOLERANCE_M, route_waypoints
+
+    nodes = np.array([[0.0, 0.0], [3.0, -2.0], [3.0, 0.0], [3.0, 2.0], [3.0, 2.5]])  # node 2: a doorway
+    narrow = np.array([False, False, True, False, False])
+    xy, skip, near = route_waypoints(nodes, [0, 1, 2, 3, 4], narrow, 1.0)
+    np.testing.assert_allclose(xy, [[0, 0], [3, -2], [3, -DOOR_APPROACH_M], [3, 0], [3, DOOR_APPROACH_M], [3, 2],
+                                    [3, 2.5]])
+    assert skip.tolist() == [True, True, False, False, True, True, True]
+    assert near.tolist() == [1.0, 1.0] + [NARROW_NODE_TOLERANCE_M] * 3 + [1.0, 1.0]
+    # at most half way to a close neighbour; a route starting in the doorway has no approach before it
+    xy, skip, _ = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
+    np.testing.assert_allclose(xy, [[3, 0], [3, DOOR_APPROACH_M], [3, 2], [3, 2.5]])
+    xy, _, _ = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
+    np.testing.assert_allclose(xy, [[3, 2.5], [3, 2.25], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])

@@ -58,3 +58,40 @@ def test_recentring_keeps_cells_in_place_in_the_odom_frame() -> None:
     # a jump beyond the grid forgets everything
     (out,) = memory.update(0.3, se2.from_xy_yaw(50.0, 0.0, 0.0), [np.zeros((0, 2))])
     assert len(out) == 0
+
+
+def _flat(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    ptr = np.zeros(len(points) + 1, dtype=np.int64)
+    np.cumsum([len(p) for p in points], out=ptr[1:])
+    return np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in points]), ptr
+
+
+def _remembered(memory: ShortTermMemory, t: float, scan: np.ndarray, other: np.ndarray) -> np.ndarray:
+    scan_xy, scan_ptr = _flat([scan])
+    xy, ptr = _flat([other])
+    out, out_ptr = memory.update_flat(t, np.eye(3), xy, ptr, scan_xy, scan_ptr)
+    return out[out_ptr[0]:out_ptr[1]]
+
+
+def test_a_scan_that_looks_past_a_remembered_cell_clears_it_other_sensors_cells_only_decay() -> None:
+    person_beside = np.array([[0.0, 0.55]])  # beside the robot: outside the camera cone, where a person walks by
+    wall_behind_it = np.column_stack([np.linspace(-1.0, 1.0, 101), np.full(101, 2.0)])
+    nothing = np.zeros((0, 2))
+    # seen by the scan for a while: remembered once the person has gone (nothing there, nothing further either)
+    memory = ShortTermMemory(1)
+    for k in range(10):
+        _remembered(memory, 0.05 * k, person_beside, nothing)
+    assert len(_remembered(memory, 0.5, nothing, nothing)) > 0
+    # the same, but now the scan reaches the wall behind: the cell was seen free and is cleared within 1 s
+    memory = ShortTermMemory(1)
+    for k in range(10):
+        _remembered(memory, 0.05 * k, person_beside, nothing)
+    left = [len(_remembered(memory, 0.5 + 0.05 * k, wall_behind_it, nothing)) for k in range(20)]
+    assert left[-1] == 0 and left[0] > 0
+    # a cell another sensor (a camera) saw keeps its evidence though the scan looks past it: it may be a low box
+    # under the scan plane
+    memory = ShortTermMemory(1)
+    for k in range(10):
+        _remembered(memory, 0.05 * k, nothing, person_beside)
+    left = [len(_remembered(memory, 0.5 + 0.05 * k, wall_behind_it, nothing)) for k in range(20)]
+    assert left[-1] > 0

@@ -202,3 +202,35 @@ def test_near_obstacles_the_fastest_point_of_the_robot_is_slowed_not_each_speed(
     # an arc shares the cap between driving and turning
     scale = nav._point_speed_scale(0.3, 0.5, 0.4)
     assert scale * (0.3 + 0.5 * radius_m) == pytest.approx(0.4 * V_MAX)
+
+
+def test_close_to_a_wall_with_the_target_beside_it_the_robot_turns_in_place_then_goes(cache_dir) -> None:
+    # stopped 0.2 m before a wall (its front at 0.3 m), a wall to the left too; the target lies 2 m to the right:
+    # every path moves forward while it turns, and the secure distance stops them all
+    obstacles = np.vstack([wall(0.5, -4.0, 0.5, 1.0), wall(-2.0, 1.0, 0.5, 1.0)])
+    nav = make_nav(cache_dir)
+    poses, commands = drive(nav, obstacles, (0.0, -2.0), 20.0)
+    assert commands[-1].state == "reached"
+    assert all(c.state == "turning" and c.v_m_s == 0.0 and c.w_rad_s < 0.0 for c in commands[:20])  # to the right
+    assert all(c.w_rad_s <= 0.0 for c in commands if c.state == "turning")                          # no dithering
+    assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
+    # without the rule it waits there
+    _, commands_without = drive(make_nav(cache_dir, turn_in_place=False), obstacles, (0.0, -2.0), 20.0)
+    assert commands_without[-1].state == "waiting"
+    assert not any(c.state == "turning" for c in commands_without)
+
+
+def test_a_target_beside_the_robot_in_open_space_is_reached_on_a_path_not_by_turning_in_place(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    _, commands = drive(nav, np.zeros((0, 3)), (0.0, 2.0), 20.0)
+    assert commands[-1].state == "reached"
+    assert not any(c.state == "turning" for c in commands)
+
+
+def test_no_turning_in_place_with_an_obstacle_inside_the_turning_circle(cache_dir) -> None:
+    # the same wall, and a post beside the robot's rear corner: turning would sweep into it
+    obstacles = np.vstack([wall(0.5, -4.0, 0.5, 1.0), wall(-2.0, 1.0, 0.5, 1.0), [[-0.25, -0.38, 0.2]]])
+    nav = make_nav(cache_dir)
+    poses, commands = drive(nav, obstacles, (0.0, -2.0), 5.0)
+    assert not any(c.state == "turning" for c in commands)
+    assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
