@@ -154,8 +154,9 @@ class ScenarioRunner(_MissionRunner):
               pass_through: Sequence[int] = ()) -> Segment:
         """Follow ``route``; also end (``still``) once the robot has not moved for ``still_exit_s``.
 
-        Doorway nodes are passed through as the runner does; so are the nodes in ``pass_through`` (an approach
-        node, so that the robot arrives at the goal facing the way from it)."""
+        Doorway nodes are passed through as the runner does (but without its approach waypoints: the scenarios
+        hand the route's nodes as they are); so are the nodes in ``pass_through`` (an approach node, so that the
+        robot arrives at the goal facing the way from it)."""
         t0, d0 = self.sim.time_s, self.report.distance_m
         self.report.min_clearance_m = math.inf
         fixed = self._narrow[route] | np.isin(route, list(pass_through))

@@ -205,15 +205,20 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
             rng = math.hypot(rx, ry)
             in_cone = blind < rng < cone_range and rx > rng * cos_cone
             emit = rng < emit_range
-            q = min(int((math.atan2(ry, rx) + math.pi) / ray_bin), n_dirs - 1)
+            q = -1  # direction of the cell, found when a band needs it
             for b in range(n_bands):
                 if fresh and hit_step[b, si, sj] != step:
                     scan_only[b, si, sj] = False  # a cell new to the window: no evidence yet
                 g = np.float32(0.0) if fresh else grids[b, si, sj] * decay
                 if hit_step[b, si, sj] == step:
                     g += hit_l
-                elif in_cone or (scan_only[b, si, sj] and rng < nearest[b, q] - ray_margin):
+                elif in_cone:
                     g += miss_l
+                elif scan_only[b, si, sj]:
+                    if q < 0:
+                        q = min(int((math.atan2(ry, rx) + math.pi) / ray_bin), n_dirs - 1)
+                    if rng < nearest[b, q] - ray_margin:
+                        g += miss_l
                 g = min(max(g, -limit), limit)
                 grids[b, si, sj] = g
                 if emit and g > occupied:
