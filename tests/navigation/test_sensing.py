@@ -1,0 +1,33 @@
+"""Obstacle points from the range sensors: level 2D lidar scans can be had apart (rays for the short-term memory)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from simnav.navigation.sensing import SensedObstacles, is_level_scan
+from simnav.sensors.readings import LaserScan
+
+
+def _scan(name: str, pitch_rad: float = 0.0, roll_rad: float = 0.0) -> LaserScan:
+    angles = np.linspace(-1.0, 1.0, 21)
+    cp, sp, cr, sr = math.cos(pitch_rad), math.sin(pitch_rad), math.cos(roll_rad), math.sin(roll_rad)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    T[:3, 3] = [0.2, 0.0, 0.3]
+    return LaserScan(name, 1.0, np.full(21, 2.0, dtype=np.float32), angles, 10.0, 0.05, T)
+
+
+def test_level_scans_upright_or_upside_down_are_split_from_tilted_ones() -> None:
+    level, flipped, tilted = _scan("front"), _scan("rear", roll_rad=math.pi), _scan("tilted", pitch_rad=0.3)
+    assert is_level_scan(level) and is_level_scan(flipped) and not is_level_scan(tilted)
+    sensed = SensedObstacles()
+    for reading in (level, flipped, tilted):
+        sensed.add(reading, np.eye(3))
+    other, scans = sensed.split_points_base(1.0, np.eye(3))
+    assert len(scans) == 42 and len(other) == 21
+    np.testing.assert_allclose(scans[:, 2], 0.3, atol=1e-9)           # in the lidars' plane
+    assert len(sensed.points_base(1.0, np.eye(3))) == 63               # all of them together
+    sensed.reset()
+    assert [len(p) for p in sensed.split_points_base(1.0, np.eye(3))] == [0, 0]
