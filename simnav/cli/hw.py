@@ -3,6 +3,7 @@ readings (registered on the main app)."""
 
 from __future__ import annotations
 
+import signal
 import statistics
 import sys
 import time
@@ -161,6 +162,8 @@ def _live_table(label: str, s) -> Table:
 
 
 def _serve(port: str) -> None:
+    # Ctrl-C stops the bus even when this process was started with SIGINT ignored (inherited from its parent)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     console.print(f"serving the virtual bus on [bold]{port}[/]; Ctrl-C to stop")
     try:
         while True:
