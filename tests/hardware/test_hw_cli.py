@@ -48,7 +48,7 @@ def test_bad_input_is_one_clear_error(args, message):
 
 
 def test_the_virtual_bus_serves_another_process_until_ctrl_c():
-    # started with SIGINT ignored, as a child of a process that ignores it inherits (in full test runs it did):
+    # started with SIGINT ignored, as a child inherits it from a parent that ignores it (what full test runs showed):
     # Ctrl-C must still stop it
     code = "import simnav.cli.hw; from simnav.cli.app import app; app()"
     proc = subprocess.Popen([sys.executable, "-c", code, "hw", "--virtual", "--no-motion", *PATIENT],
