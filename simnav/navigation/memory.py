@@ -169,26 +169,21 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
     # space), then the other points (whose cells' evidence is not only the scan's)
     n_dirs = int(math.ceil(2.0 * math.pi / ray_bin))
     nearest = np.full((n_bands, n_dirs), -1.0)  # -1: no scan point in that direction
-    for b in range(n_bands):
-        for k in range(scan_ptr[b], scan_ptr[b + 1]):
-            px, py = scan_xy[k, 0], scan_xy[k, 1]
-            i = int(math.floor((c * px - s * py + tx) / cell)) - ox
-            j = int(math.floor((s * px + c * py + ty) / cell)) - oy
-            if 0 <= i < n and 0 <= j < n:
-                hit_step[b, (ox + i) % n, (oy + j) % n] = step
-                scan_only[b, (ox + i) % n, (oy + j) % n] = True
-            q = min(int((math.atan2(py, px) + math.pi) / ray_bin), n_dirs - 1)
-            r = math.hypot(px, py)
-            if nearest[b, q] < 0 or r < nearest[b, q]:
-                nearest[b, q] = r
-    for b in range(n_bands):
-        for k in range(ptr[b], ptr[b + 1]):
-            px, py = xy[k, 0], xy[k, 1]
-            i = int(math.floor((c * px - s * py + tx) / cell)) - ox
-            j = int(math.floor((s * px + c * py + ty) / cell)) - oy
-            if 0 <= i < n and 0 <= j < n:
-                hit_step[b, (ox + i) % n, (oy + j) % n] = step
-                scan_only[b, (ox + i) % n, (oy + j) % n] = False
+    for source in range(2):  # 0: scan points, 1: the other points
+        pts, pts_ptr = (scan_xy, scan_ptr) if source == 0 else (xy, ptr)
+        for b in range(n_bands):
+            for k in range(pts_ptr[b], pts_ptr[b + 1]):
+                px, py = pts[k, 0], pts[k, 1]
+                i = int(math.floor((c * px - s * py + tx) / cell)) - ox
+                j = int(math.floor((s * px + c * py + ty) / cell)) - oy
+                if 0 <= i < n and 0 <= j < n:
+                    hit_step[b, (ox + i) % n, (oy + j) % n] = step
+                    scan_only[b, (ox + i) % n, (oy + j) % n] = source == 0
+                if source == 0:
+                    q = min(int((math.atan2(py, px) + math.pi) / ray_bin), n_dirs - 1)
+                    r = math.hypot(px, py)
+                    if nearest[b, q] < 0 or r < nearest[b, q]:
+                        nearest[b, q] = r
     # Window pass: recycle slots of cells that left, decay, free-space cone, hits, clip, emit occupied cells
     out = np.empty((n_bands, n * n, 2))
     count = np.zeros(n_bands, dtype=np.int64)
