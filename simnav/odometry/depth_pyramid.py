@@ -11,11 +11,12 @@ Conventions:
 
 The pyramid is a bilateral 5 x 5 binomial filter that does not mix depths across discontinuities: a neighbour
 contributes ``g (gate - |z - z_centre|)`` when its depth is within ``gate`` of the centre's (CDifodo); an invalid
-centre takes the smallest valid depth of its window (the closest surface). Warping renders a depth image from
-another viewpoint with a z-buffer (3.14, the closest surface wins) by rasterising the triangles between
-neighbouring pixels, which is exact for planes; CDifodo splats points bilinearly instead, which on steep surfaces
-(a floor seen at a grazing angle) shifts the warped depth by a fraction of a pixel times a large gradient and biases
-the motion by millimetres.
+centre stays invalid. (CDifodo gives it the smallest valid depth of its window: a depth on a ray that saw nothing.
+Along the camera's range limit those pixels form a contour that stays put while the camera moves along a floor or a
+wall, and pull the estimate towards standing still.) Warping renders a depth image from another viewpoint with a
+z-buffer (3.14, the closest surface wins) by rasterising the triangles between neighbouring pixels, which is exact
+for planes; CDifodo splats points bilinearly instead, which on steep surfaces (a floor seen at a grazing angle)
+shifts the warped depth by a fraction of a pixel times a large gradient and biases the motion by millimetres.
 
 The per-pixel loops (downsampling, rasterisation) are Numba kernels (``@njit(cache=True)``): numpy and OpenCV
 cannot rasterise, and the vectorised gated filter took 2.3 ms per QVGA frame against 1.2 ms compiled. Kernels write
@@ -165,8 +166,7 @@ def gated_downsample(depth_m: np.ndarray, gate_m: float) -> np.ndarray:
 
     Output pixel ``(u, v)`` is centred on input pixel ``(2u, 2v)``. Each valid neighbour in the 5 x 5 window
     (pixels outside the image do not count) is weighted by ``g_k (gate - |z_k - z_centre|)`` when positive, so
-    depths across a discontinuity are never mixed. An invalid centre takes the smallest valid depth in its window,
-    or stays invalid.
+    depths across a discontinuity are never mixed. An invalid centre stays invalid.
 
     Args:
         depth_m: (H, W) float32 depth, 0 = invalid; H and W even.
@@ -188,8 +188,10 @@ def _downsample_kernel(z: np.ndarray, gate: float, out: np.ndarray) -> None:
     for v in range(out.shape[0]):
         for u in range(out.shape[1]):
             centre = z[2 * v, 2 * u]
+            if centre <= 0:
+                out[v, u] = 0.0
+                continue
             num = den = 0.0
-            closest = np.inf
             for i in range(5):
                 y = 2 * v + i - 2
                 if y < 0 or y >= h:
@@ -201,15 +203,11 @@ def _downsample_kernel(z: np.ndarray, gate: float, out: np.ndarray) -> None:
                     d = z[y, x]
                     if d <= 0:
                         continue
-                    closest = min(closest, d)
                     weight = GAUSS5[i] * GAUSS5[j] * (gate - abs(d - centre))
                     if weight > 0:
                         num += weight * d
                         den += weight
-            if centre > 0:
-                out[v, u] = num / den
-            else:
-                out[v, u] = closest if closest < np.inf else 0.0
+            out[v, u] = num / den
 
 
 def build_pyramid(depth_m: np.ndarray, plan: PyramidPlan, gate_m: float) -> list[np.ndarray]:

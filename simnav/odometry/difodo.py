@@ -13,7 +13,9 @@ towards the previous velocity (3.36, constants 3.46). There is no robust kernel:
 Additions to the thesis, from the reference implementation (CDifodo) or needed on clean synthetic data:
 CDifodo's first-order linearisation term (``linearization_k1``), which down-weights occlusion boundaries; pixels
 without a neighbour on their own surface are edges and give no constraint (3.E.3 says they "must be ruled out");
-warping rasterises triangles instead of splatting points (:mod:`simnav.odometry.depth_pyramid`).
+warping rasterises triangles instead of splatting points, and an invalid pixel stays invalid in the pyramid
+(:mod:`simnav.odometry.depth_pyramid`); a degenerate increment keeps the constant-velocity prediction along its
+least-constrained translation (``hold_degenerate``).
 
 Conventions:
 
@@ -91,6 +93,10 @@ class DifodoConfig:
             of the largest (not in the thesis, whose filter only damps such directions).
         degeneracy_spacing_deg: that information is taken at the level whose pixel spacing is closest to this, deg
             (at the finest level depth noise swamps the surface normals).
+        hold_degenerate: a degenerate increment keeps the constant-velocity prediction along the translational part
+            of its least-constrained direction (e.g. along a corridor of floor and one wall, where the depth images
+            do not change with the motion). Without it the coarse levels' noise decides that motion. Not in the
+            thesis.
     """
 
     max_rows: int = 240
@@ -109,6 +115,7 @@ class DifodoConfig:
     lost_variance: float = 1.0
     degeneracy_threshold: float = 0.003
     degeneracy_spacing_deg: float = 2.0
+    hold_degenerate: bool = True
 
     def __post_init__(self) -> None:
         require(self.max_rows >= 4, "max_rows must be >= 4")
@@ -481,11 +488,41 @@ def degeneracy(information: np.ndarray, lever_m: float) -> tuple[float, np.ndarr
         ``(ratio, direction)``: the ratio in [0, 1] (near 0 when a motion is unobservable, e.g. facing a single
         wall) and the (6,) unit twist direction constrained least.
     """
-    s = np.r_[np.ones(3), np.full(3, 1.0 / max(lever_m, 1e-3))]
-    mu, V = np.linalg.eigh(information * np.outer(s, s))
+    mu, V, s = _scaled_information(information, lever_m)
     ratio = float(max(mu[0], 0.0) / mu[-1]) if mu[-1] > 0 else 0.0
     v = V[:, 0] * s
     return ratio, v / np.linalg.norm(v)
+
+
+def hold_weakest_translation(xi: np.ndarray, xi_prediction: np.ndarray, information: np.ndarray,
+                             lever_m: float) -> np.ndarray:
+    """``xi`` with the translational part of its least-constrained direction taken from ``xi_prediction``.
+
+    In the coordinates of :func:`degeneracy` (rotation as displacement at ``lever_m``) with ``u`` the weakest
+    eigenvector of the information, the twist moves by the translational part of ``u u^T (prediction - xi)``;
+    its rotation stays as estimated.
+
+    Args:
+        xi: (6,) estimated velocity (v, w), m/s and rad/s.
+        xi_prediction: (6,) predicted velocity, same units.
+        information: (6, 6) geometric information (:attr:`LevelSystem.information`).
+        lever_m: mean depth, m.
+
+    Returns:
+        (6,) velocity.
+    """
+    _, V, s = _scaled_information(information, lever_m)
+    u = V[:, 0]
+    step = u * (u @ ((xi_prediction - xi) / s))
+    return xi + np.r_[step[:3], np.zeros(3)]
+
+
+def _scaled_information(information: np.ndarray, lever_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending), eigenvectors and the (6,) scale ``s`` of the information of the twist divided by
+    ``s`` (rotation times ``lever_m``: the displacement it causes at that distance)."""
+    s = np.r_[np.ones(3), np.full(3, 1.0 / max(lever_m, 1e-3))]
+    mu, V = np.linalg.eigh(information * np.outer(s, s))
+    return mu, V, s
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -578,8 +615,8 @@ class DIFODO:
         if new is not None and ref is not None and new.key == ref.key:
             alignment = self._align(ref, new, dt)
         if alignment is not None:
-            T_inc = alignment.T_prev_curr
             cov, degenerate, ratio = self._covariance(alignment, dt)
+            T_inc = self._held(alignment, dt) if degenerate and cfg.hold_degenerate else alignment.T_prev_curr
         else:
             T_inc = np.eye(4) if first else se3.exp(self._xi_prev * dt)
             cov = np.zeros((6, 6)) if first else cfg.lost_variance * np.eye(6)
@@ -663,6 +700,12 @@ class DIFODO:
         if ratio >= self.config.degeneracy_threshold:
             return cov, False, ratio
         return cov + self.config.lost_variance * np.outer(v, v), True, ratio
+
+    def _held(self, alignment: Alignment, dt: float) -> np.ndarray:
+        """The increment of a degenerate alignment with its weakest translation from the constant-velocity
+        prediction (:func:`hold_weakest_translation`)."""
+        xi = se3.log(alignment.T_prev_curr) / dt
+        return se3.exp(hold_weakest_translation(xi, self._xi_prev, *alignment.information) * dt)
 
     def _information_level(self, cameras: tuple[LevelCamera, ...]) -> int:
         """Index of the level whose pixel spacing is closest to ``degeneracy_spacing_deg``."""

@@ -14,8 +14,13 @@ import pytest
 from simnav.errors import ConfigError
 from simnav.geometry import se3
 from simnav.geometry.camera import R_BODY_OPTICAL, box_room_depth
-from simnav.odometry.depth_pyramid import LevelCamera, gated_downsample, plan_pyramid, warp_depth
-from simnav.odometry.difodo import DIFODO, DifodoConfig
+from simnav.odometry.depth_pyramid import (
+    LevelCamera,
+    gated_downsample,
+    plan_pyramid,
+    warp_depth,
+)
+from simnav.odometry.difodo import DIFODO, DifodoConfig, hold_weakest_translation
 from simnav.sensors.readings import RGBDFrame
 
 ROOM = np.array([[-3.0, -2.5, 0.0], [3.0, 2.5, 2.8]])
@@ -253,12 +258,29 @@ def test_pyramid_plan_follows_the_thesis_levels():
 def test_gated_downsample_does_not_mix_across_discontinuities():
     z = np.full((8, 8), 3.0, dtype=np.float32)
     z[:, :3] = 1.0
-    z[5, 6] = 0.0  # an invalid centre takes the closest valid depth of its window
+    z[5, 6] = 0.0  # an invalid neighbour does not count
     z[4, 4] = 0.0
     out = gated_downsample(z, 0.1)
-    assert set(np.unique(out)) == {1.0, 3.0}
+    assert set(np.unique(out)) == {0.0, 1.0, 3.0}
     np.testing.assert_array_equal(out[:, 0], 1.0)
-    assert out[2, 2] == 1.0  # centre (4, 4) invalid: the 1 m surface at column 2 is the closest
+    assert out[2, 2] == 0.0  # centre (4, 4) invalid: stays invalid, its window's depths are not copied into it
+    assert out[2, 3] == 3.0  # centre (4, 6) valid, next to the invalid (5, 6)
+
+
+def test_a_degenerate_estimate_keeps_the_prediction_along_its_weakest_translation():
+    # floor (normal y, optical frame) and a wall (normal x): the motion along z changes no depth
+    rng = np.random.default_rng(1)
+    rows = []
+    for normal in ((0.0, -1.0, 0.0), (1.0, 0.0, 0.0)):
+        for _ in range(200):
+            p = rng.uniform(-2, 2, 3) + np.array([0.0, 0.0, 3.0])
+            rows.append(np.r_[normal, np.cross(p, normal)])
+    information = sum(np.outer(r, r) for r in rows)
+    xi = np.array([0.01, -0.02, 0.05, 0.1, -0.2, 0.3])
+    prediction = np.array([0.5, 0.4, 0.6, -1.0, 1.0, 2.0])
+    held = hold_weakest_translation(xi, prediction, information, 3.0)
+    np.testing.assert_allclose(held[2], 0.6, atol=1e-9)  # along the corridor: the prediction
+    np.testing.assert_allclose(held[[0, 1, 3, 4, 5]], xi[[0, 1, 3, 4, 5]], atol=1e-9)  # the rest as estimated
 
 
 def test_warping_renders_a_plane_exactly():
