@@ -39,6 +39,11 @@ labelled moving, over all frames (compare seed 001's Table I).
 
     python scripts/bench_rgbd_odometry.py [--seconds 10] [--sequences robot-static robot-people3 ...]
                                           [--methods difodo-qvga vosf open3d-rgbd ...] [--seed 0] [--candidates 4]
+                                          [--per-frame DIR]
+
+``--per-frame DIR`` writes the error of every frame-to-frame increment per sequence and method
+(``DIR/<sequence>_<method>.csv``: true and estimated speed, translational and rotational error, degeneracy flag),
+to find the frames where a method goes wrong.
 
 Defaults: robot-static, robot-people3, robot-people5 and handheld-static, 10 s each (301 frames): about 8 minutes
 on a shared 2-core machine, simulation included (about 1.5 minutes of it; later runs read the cache).
@@ -509,11 +514,12 @@ class Row:
 _WARM: set[str] = set()
 
 
-def run(method: str, seq: Sequence) -> Row:
+def run(method: str, seq: Sequence, per_frame: Path | None = None) -> Row:
     """Runs one method over a sequence and scores it against the ground truth.
 
     The first time a method runs in this process, a throw-away instance first processes 3 frames (loading compiled
-    kernels and libraries is not timed).
+    kernels and libraries is not timed). With ``per_frame``, the error of every frame-to-frame increment is written
+    there as CSV (:func:`write_per_frame`).
     """
     if method not in _WARM:
         warm = METHODS[method]()
@@ -522,19 +528,41 @@ def run(method: str, seq: Sequence) -> Row:
         _WARM.add(method)
     odometry = METHODS[method]()
     flow = FlowScore() if method == "vosf" and seq.info["people"] > 0 else None
-    poses, times = [], []
+    poses, times, degenerate = [], [], []
     for k, frame in enumerate(seq.frames):
         t0 = time.perf_counter()
         T = odometry.process(frame)
         times.append(time.perf_counter() - t0)
         poses.append(seq.T_world_camera[0] @ T)  # the estimate starts at the true first pose
+        degenerate.append(bool(odometry.last.degenerate) if isinstance(odometry, _Ours) else False)
         if flow is not None:
             flow.add(seq, k, odometry.last.extra)
+    if per_frame is not None:
+        write_per_frame(per_frame, seq, np.array(poses), degenerate)
     est, gt = Trajectory(seq.stamps_s, np.array(poses)), Trajectory(seq.stamps_s, seq.T_world_camera)
     rpe = rpe_per_second(est, gt)
     ms = np.array(times[1:]) * 1e3
     return Row(rpe.trans_rmse_cm_s, rpe.rot_rmse_deg_s, 100 * ate(est, gt, "se3").rmse_m,
                (float(np.median(ms)), float(np.percentile(ms, 95))), odometry.failures, flow)
+
+
+def write_per_frame(path: Path, seq: Sequence, T_world_camera: np.ndarray, degenerate: list[bool]) -> None:
+    """CSV of every frame-to-frame increment of an estimate against the ground truth: frame, stamp_s, true and
+    estimated speed (norm of the translation over the interval, m/s), translational and rotational error of the
+    increment (m/s, deg/s; the true increment's inverse times the estimated one), and the method's degeneracy flag
+    (simnav's methods; False for the peers). ``T_world_camera``: (N, 4, 4) estimated poses."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = ["frame,stamp_s,true_speed_m_s,est_speed_m_s,trans_error_m_s,rot_error_deg_s,degenerate"]
+    for k in range(1, len(seq.frames)):
+        dt = float(seq.stamps_s[k] - seq.stamps_s[k - 1]) or 1.0
+        true = se3.inverse(seq.T_world_camera[k - 1]) @ seq.T_world_camera[k]
+        est = se3.inverse(T_world_camera[k - 1]) @ T_world_camera[k]
+        err = se3.inverse(true) @ est
+        angle = math.degrees(np.linalg.norm(se3.so3_log(err[:3, :3])))
+        lines.append(f"{k},{seq.stamps_s[k]:.6f},{np.linalg.norm(true[:3, 3]) / dt:.4f},"
+                     f"{np.linalg.norm(est[:3, 3]) / dt:.4f},{np.linalg.norm(err[:3, 3]) / dt:.4f},{angle / dt:.4f},"
+                     f"{int(degenerate[k])}")
+    path.write_text("\n".join(lines) + "\n")
 
 
 def _motion_stats(seq: Sequence) -> tuple[float, float, float]:
@@ -554,6 +582,8 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=DEFAULT_METHODS, choices=list(METHODS))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--candidates", type=int, default=4, help="seeds tried per sequence with people")
+    parser.add_argument("--per-frame", type=Path, metavar="DIR",
+                        help="write DIR/<sequence>_<method>.csv: the error of every frame-to-frame increment")
     args = parser.parse_args()
     console = Console()
     if not console.is_terminal:
@@ -590,7 +620,8 @@ def main() -> None:
                     bar.advance(task)
                     continue
                 try:
-                    row = run(method, seq)
+                    csv = args.per_frame / f"{name}_{method}.csv" if args.per_frame else None
+                    row = run(method, seq, csv)
                 except ImportError as err:
                     missing[method] = str(err)
                     console.print(f"[yellow]{method}: not installed ({err}); skipped")
