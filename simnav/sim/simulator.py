@@ -26,6 +26,7 @@ from simnav.sensors.lidar import Lidar2D, Lidar3D
 from simnav.sensors.readings import ContactEvent, Reading
 from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
+from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
 from simnav.sim.scene import build_scene
 from simnav.world.footprint import obstacle_segments
@@ -73,6 +74,9 @@ class Simulator:
         motor_dt = self._motor_substeps * self._dt_s
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
+        self._clearance = ContactClearance(self.model, self.index.robot_body, drive.max_v_m_s)
+        flags = self.model.opt.disableflags
+        self._contact_flags = (flags, flags | mujoco.mjtDisableBit.mjDSBL_CONTACT)  # (detecting, skipping)
         self.sensors = self._make_sensors()
         self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
         self._sees_scene = [not isinstance(s, WheelEncoders) for s in self.sensors]
@@ -251,17 +255,34 @@ class Simulator:
     def _run_until(self, end: int) -> list[Reading]:
         """Run the physics up to step ``end`` in stretches of constant controls, doing what is due after each;
         returns the readings delivered meanwhile, oldest first."""
+        try:
+            return self._stretches(end)
+        finally:
+            self.model.opt.disableflags = self._contact_flags[0]
+
+    def _stretches(self, end: int) -> list[Reading]:
+        """:meth:`_run_until`'s loop (it may leave MuJoCo's collision detection switched off)."""
         delivered: list[Reading] = []
         model, data, base_qpos, history = self.model, self.data, self._base_qpos, self._history
         dt, agent, encoders = self._dt_s, self._agent_substeps, self._encoders
+        opt, clearance, flags, skipping = model.opt, self._clearance, self._contact_flags, False
         k = self._step_count
+        checked = -1  # up to this step the robot is known to touch nothing (skipping) or may touch something
         while k < end:
             n = self._steps_to_next_event(k, end)
             # agents move on their own period (their state is one period ahead; poses are interpolated)
             if k % agent == 0:
                 self._step_agents()
+                checked = -1
             # motor model: latency, then acceleration limits at the motor controller's rate
             self._apply_drive(k)
+            # collision detection, unless the robot can touch nothing until the agents are posed again
+            if k + n > checked:
+                checked = max(k + n, self._posed_until(k, end))
+                clear = clearance.clear_for(data, checked - k, base_qpos, self._base_qvel)
+                if clear != skipping:
+                    skipping = clear
+                    opt.disableflags = flags[clear]
             if encoders:
                 v0, w0 = self.base_velocity()
             mujoco.mj_step(model, data, n)
@@ -278,9 +299,16 @@ class Simulator:
             # sensors due now, and readings whose latency has passed
             if k >= self._next_due_step:
                 self._capture_due(self.time_s)
+                checked = -1
             if k >= self._delivery_step:
                 delivered += self._deliver()
         return delivered
+
+    def _posed_until(self, k: int, end: int) -> int:
+        """The step after step ``k`` at which the agents may be posed next (their period, the earliest capture's
+        pause) or the period ends (step ``end``)."""
+        agent = self._agent_substeps
+        return min(end, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
 
     def _apply_drive(self, k: int) -> None:
         """Commands whose latency has passed at step ``k`` take effect; the motor ramps towards the latest one."""
