@@ -352,21 +352,18 @@ class Simulator:
 
     def _keep_agent_state(self) -> None:
         """Fetch the arrays of the people and other robots that poses are interpolated from (the agents replace
-        them when they step)."""
+        them when they step): their mocap rows, positions, velocities, yaws and yaw rates."""
         idx = self.index
-        self._movers = [(rows, agents.positions_xy, agents.velocities_xy, agents.yaws_rad, agents.yaw_rates_rad_s)
-                        for rows, agents in ((idx.pedestrian_mocap, self.crowd), (idx.wanderer_mocap, self.wanderers))
-                        if len(rows)]
+        self._movers = (idx.pedestrian_mocap, *self.crowd.motion_arrays(), idx.wanderer_mocap,
+                        *self.wanderers.motion_arrays())
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        back = max(self._agent_time_s - t_s, 0.0)
-        for rows, xy, vel, yaw, yaw_rate in self._movers:
-            _pose_movers(self._mocap_pos, self._mocap_quat, rows, xy, vel, yaw, yaw_rate, back)
-        _pose_turners(self._mocap_quat, *self._turners, back)
+        _pose_agents(self._mocap_pos, self._mocap_quat, *self._movers, *self._turners,
+                     max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -584,6 +581,18 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
         nearby[i, 0], nearby[i, 1] = x, y
         blockers[robots + i, 0], blockers[robots + i, 1], blockers[robots + i, 2] = x, y, radius_m
     nearby[people, 0], nearby[people, 1] = blockers[0, 0], blockers[0, 1]
+
+
+@njit(cache=True)
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, people: np.ndarray, people_xy: np.ndarray,
+                 people_vel: np.ndarray, people_yaw: np.ndarray, people_rate: np.ndarray, robots: np.ndarray,
+                 robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray, robots_rate: np.ndarray,
+                 doors: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray, back_s: float) -> None:
+    """Pose the mocap bodies ``people``, ``robots`` (:func:`_pose_movers`) and ``doors`` (:func:`_pose_turners`)
+    ``back_s`` before their states (positions, velocities, yaws, yaw rates)."""
+    _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
+    _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
+    _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
 
 
 @njit(cache=True)
