@@ -52,7 +52,7 @@ class RayCaster:
         self.planar = in_plane and covered if planar is None else planar and in_plane and covered
         self._azimuth_sensor = np.arctan2(self._dirs[:, 1], self._dirs[:, 0])
         self._azimuth_world = np.empty(len(self._dirs))
-        self._dirs_world = np.empty_like(self._dirs)
+        self._dirs_world, self._rotation_t = np.empty_like(self._dirs), np.empty((3, 3))
         self._geoms = (model.geom_type, model.geom_size, model.geom_rbound)  # views of the model's arrays
         self._data, self._poses = None, ()
 
@@ -62,7 +62,9 @@ class RayCaster:
             self._data, self._poses = data, (data.site_xpos, data.site_xmat, data.geom_xpos, data.geom_xmat)
         site_xpos, site_xmat, geom_xpos, geom_xmat = self._poses
         origin, mat = site_xpos[self._site].copy(), site_xmat[self._site]
-        dirs_world = np.matmul(self._dirs, mat.reshape(3, 3).T, out=self._dirs_world)
+        # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
+        np.copyto(self._rotation_t, mat.reshape(3, 3).T)
+        dirs_world = np.matmul(self._dirs, self._rotation_t, out=self._dirs_world)
         if self.planar:
             world_azimuths(self._azimuth_sensor, mat, self._azimuth_world)
         if not (self.planar and cast_planar(origin, dirs_world, self._azimuth_world, self._seen, *self._geoms,
