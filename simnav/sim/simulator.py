@@ -328,24 +328,25 @@ class Simulator:
 
     def _step_agents(self) -> None:
         """Advance the people, the other robots and the doors by one agent period and pose them at the current time."""
-        dt, crowd, wanderers = self._agent_dt_s, self.crowd, self.wanderers
+        dt, crowd, wanderers, doors = self._agent_dt_s, self.crowd, self.wanderers, self.doors
         people_count, robots = crowd.count, 1 + wanderers.count
         # blockers: circles of the robot and the other robots before this step, then of the people after it;
         # nearby: the people and the robot, then the other robots after their step
         blockers, nearby = np.empty((robots + people_count, 3)), np.empty((people_count + robots, 2))
         circles, circle_vel = blockers[:robots], np.empty((robots, 2))
-        _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m,
-                    wanderers.positions_xy, wanderers.velocities_xy, WANDERER_RADIUS_M)
+        others_xy, others_vel = wanderers.motion_arrays()[:2]
+        _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m, others_xy, others_vel,
+                    WANDERER_RADIUS_M)
         # people (an empty crowd has nothing to step), then the other robots, then the doors
         if people_count:
-            doors = self.doors.segments_xy() if self.doors else None
-            crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
-        _people_rows(nearby, blockers, crowd.positions_xy, crowd.radius_m, robots)
-        if wanderers.count:
+            crowd.step(dt, dynamic_segments=doors.segments_xy() if doors else None, circles=circles,
+                       circle_velocities=circle_vel)
+        _people_rows(nearby, blockers, crowd.motion_arrays()[0], crowd.radius_m, robots)
+        if robots > 1:
             wanderers.step(dt, nearby[:people_count + 1])
-        if self.doors:
-            nearby[people_count + 1:] = wanderers.positions_xy
-            self.doors.update(self._agent_time_s + dt, dt, nearby, blockers)
+        if doors:
+            nearby[people_count + 1:] = wanderers.motion_arrays()[0]
+            doors.update(self._agent_time_s + dt, dt, nearby, blockers)
         self._agent_time_s += dt
         self._keep_agent_state()
         self._pose_agents_at(self.time_s)
