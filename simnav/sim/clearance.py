@@ -1,9 +1,9 @@
-"""When the robot cannot touch anything for a while: MuJoCo's collision detection can then be skipped.
+"""How long the robot cannot touch anything: MuJoCo's collision detection can be skipped meanwhile.
 
 Only the robot's geoms can make contacts (everything else is fixed to the world or a mocap body, and no two of
 those may collide). While every geom the robot may collide with stays farther from the robot's vertical axis than
-the robot's footprint radius plus the distance the base can travel, collision detection finds nothing, and the
-physics steps are the same without it. The test is conservative: each geom is bounded on the floor plane (world
+the robot's footprint radius plus the distance the base can have travelled, collision detection finds nothing, and
+the physics steps are the same without it. The test is conservative: each geom is bounded on the floor plane (world
 x/y) by a disc, a stadium or a rectangle that contains its projection, the robot by the disc of its footprint
 radius about its axis.
 
@@ -41,8 +41,8 @@ class ContactClearance:
 
     Attributes:
         usable: False when the scene breaks the assumptions (a body other than the robot that physics moves,
-            explicit contact pairs, colliding non-robot geoms, a base that is not planar); :meth:`clear_for` then
-            always answers False.
+            explicit contact pairs, colliding non-robot geoms, a base that is not planar); :meth:`clear_steps` then
+            always answers 0.
     """
 
     def __init__(self, model: mujoco.MjModel, robot_body: int, max_speed_m_s: float) -> None:
@@ -61,13 +61,15 @@ class ContactClearance:
         # the mocap geoms, grouped by body: the mocap ids, their geoms' rows and a radius bounding them
         self._mocap, self._spans, self._local, self._types, self._reach = _mocap_geoms(model, moving)
 
-    def clear_for(self, data: mujoco.MjData, steps: int, base_q: np.ndarray, base_v: np.ndarray) -> bool:
-        """True when no contact can arise during the next ``steps`` physics steps from the current state: the mocap
-        bodies as posed now, the base's joints at ``base_q`` (x m, y m, yaw) moving at ``base_v`` (vx, vy m/s,
-        yaw rate), world frame."""
-        return self.usable and _clear(steps, base_q, base_v, self._robot, self._fixed, self._table_origin,
-                                      self._table, data.mocap_pos, data.mocap_quat, self._mocap, self._spans,
-                                      self._local, self._types, self._reach)
+    def clear_steps(self, data: mujoco.MjData, steps: int, base_q: np.ndarray, base_v: np.ndarray) -> int:
+        """How many of the next ``steps`` physics steps certainly make no contact, from the current state: the
+        mocap bodies as posed now (and until then), the base's joints at ``base_q`` (x m, y m, yaw) moving at
+        ``base_v`` (vx, vy m/s, yaw rate), world frame."""
+        if not self.usable:
+            return 0
+        return _clear_steps(steps, base_q, base_v, self._robot, self._fixed, self._table_origin, self._table,
+                            data.mocap_pos, data.mocap_quat, self._mocap, self._spans, self._local, self._types,
+                            self._reach)
 
 
 def _collidable_with(model: mujoco.MjModel, robot: np.ndarray) -> np.ndarray:
@@ -177,18 +179,21 @@ def _mocap_geoms(model: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, 
 
 
 @njit(cache=True)
-def _clear(steps: int, base_q: np.ndarray, base_v: np.ndarray, robot: np.ndarray, fixed: np.ndarray,
-           table_origin: np.ndarray, table: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
-           mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray, body_reach: np.ndarray) -> bool:
-    """:meth:`ContactClearance.clear_for`: ``robot`` = (footprint radius plus margins and pad m, largest command
-    times SPEED_FACTOR m/s, SPEED_FACTOR, step s, body offset x, y m)."""
+def _clear_steps(steps: int, base_q: np.ndarray, base_v: np.ndarray, robot: np.ndarray, fixed: np.ndarray,
+                 table_origin: np.ndarray, table: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
+                 mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray,
+                 body_reach: np.ndarray) -> int:
+    """:meth:`ContactClearance.clear_steps`: ``robot`` = (footprint radius plus margins and pad m, largest command
+    times SPEED_FACTOR m/s, SPEED_FACTOR, step s, body offset x, y m). The base travels at most ``step_m`` a step,
+    so the steps before the room left around the footprint is used up are clear."""
     vx, vy = base_v[0], base_v[1]
-    speed = max(math.sqrt(vx * vx + vy * vy) * robot[2], robot[1])
-    reach = robot[0] + speed * steps * robot[3]
+    step_m = max(math.sqrt(vx * vx + vy * vy) * robot[2], robot[1]) * robot[3]
     px, py = robot[4] + base_q[0], robot[5] + base_q[1]
-    if _fixed_clearance(px, py, fixed, table_origin, table) <= reach:
-        return False
-    return _mocap_clear(px, py, reach, mocap_pos, mocap_quat, mocap, spans, local, types, body_reach)
+    room = min(_fixed_clearance(px, py, fixed, table_origin, table) - robot[0], steps * step_m)
+    if room <= 0.0:
+        return 0
+    room = _mocap_room(px, py, robot[0], room, mocap_pos, mocap_quat, mocap, spans, local, types, body_reach)
+    return min(steps, int(room / step_m)) if room > 0.0 else 0
 
 
 @njit(cache=True)
@@ -214,17 +219,18 @@ def _nearest(px: float, py: float, rows: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _mocap_clear(px: float, py: float, reach_m: float, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
-                 mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray,
-                 body_reach: np.ndarray) -> bool:
-    """True when every mocap geom lies more than ``reach_m`` plus its margin from ``(px, py)`` on the floor plane
-    (arguments of :func:`_mocap_geoms`; bodies posed by ``mocap_pos`` (B, 3) and ``mocap_quat`` (B, 4))."""
+def _mocap_room(px: float, py: float, radius_m: float, room_m: float, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
+                mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray,
+                body_reach: np.ndarray) -> float:
+    """``room_m`` or less: the smallest floor-plane distance from ``(px, py)`` to a mocap geom, less its margin and
+    ``radius_m`` (arguments of :func:`_mocap_geoms`; bodies posed by ``mocap_pos`` (B, 3) and ``mocap_quat``
+    (B, 4))."""
     row, xpos, body_mat, xmat = np.empty((1, SHAPE_FIELDS)), np.empty(3), np.empty(9), np.empty(9)
     for b in range(mocap.shape[0]):
         m = mocap[b]
         dx, dy = px - mocap_pos[m, 0], py - mocap_pos[m, 1]
-        if math.sqrt(dx * dx + dy * dy) - body_reach[b] > reach_m:
-            continue  # the whole body is far enough, however it is turned
+        if math.sqrt(dx * dx + dy * dy) - body_reach[b] - radius_m >= room_m:
+            continue  # the whole body is farther, however it is turned
         _quat_to_mat(mocap_quat[m, 0], mocap_quat[m, 1], mocap_quat[m, 2], mocap_quat[m, 3], body_mat)
         for k in range(spans[b], spans[b + 1]):
             for i in range(3):
@@ -234,9 +240,8 @@ def _mocap_clear(px: float, py: float, reach_m: float, mocap_pos: np.ndarray, mo
                     xmat[3 * i + j] = (body_mat[3 * i] * local[k, 3 + j] + body_mat[3 * i + 1] * local[k, 6 + j]
                                        + body_mat[3 * i + 2] * local[k, 9 + j])
             _shape_row(types[k], local[k, 12], local[k, 13], local[k, 14], local[k, 15], xpos, xmat, row, 0)
-            if _gap(px, py, row, 0) - local[k, 16] <= reach_m:
-                return False
-    return True
+            room_m = min(room_m, _gap(px, py, row, 0) - local[k, 16] - radius_m)
+    return room_m
 
 
 @njit(cache=True)

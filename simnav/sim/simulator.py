@@ -267,22 +267,22 @@ class Simulator:
         dt, agent, encoders = self._dt_s, self._agent_substeps, self._encoders
         opt, clearance, flags, skipping = model.opt, self._clearance, self._contact_flags, False
         k = self._step_count
-        checked = -1  # up to this step the robot is known to touch nothing (skipping) or may touch something
+        clear_until = None  # no contact can arise before this step (None: to be checked, the agents were posed)
         while k < end:
             n = self._steps_to_next_event(k, end)
             # agents move on their own period (their state is one period ahead; poses are interpolated)
             if k % agent == 0:
                 self._step_agents()
-                checked = -1
+                clear_until = None
             # motor model: latency, then acceleration limits at the motor controller's rate
             self._apply_drive(k)
-            # collision detection, unless the robot can touch nothing until the agents are posed again
-            if k + n > checked:
-                checked = max(k + n, self._posed_until(k, end))
-                clear = clearance.clear_for(data, checked - k, base_qpos, self._base_qvel)
-                if clear != skipping:
-                    skipping = clear
-                    opt.disableflags = flags[clear]
+            # collision detection, unless the robot can touch nothing during this stretch
+            if clear_until is None:
+                clear_until = k + clearance.clear_steps(data, self._posed_until(k, end) - k, base_qpos,
+                                                        self._base_qvel)
+            if (k + n <= clear_until) != skipping:
+                skipping = not skipping
+                opt.disableflags = flags[skipping]
             if encoders:
                 v0, w0 = self.base_velocity()
             mujoco.mj_step(model, data, n)
@@ -299,14 +299,14 @@ class Simulator:
             # sensors due now, and readings whose latency has passed
             if k >= self._next_due_step:
                 self._capture_due(self.time_s)
-                checked = -1
+                clear_until = None
             if k >= self._delivery_step:
                 delivered += self._deliver()
         return delivered
 
     def _posed_until(self, k: int, end: int) -> int:
         """The step after step ``k`` at which the agents may be posed next (their period, the earliest capture's
-        pause) or the period ends (step ``end``)."""
+        pause) or the period ends (step ``end``); no stretch goes past it."""
         agent = self._agent_substeps
         return min(end, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
 

@@ -31,14 +31,17 @@ def test_skipping_collision_detection_changes_nothing(monkeypatch):
     config = SimConfig(pedestrians=6, wanderers=1)
     with Simulator(world, robot, config, seed=2) as sim:
         decisions = []
-        clear_for = sim._clearance.clear_for
-        monkeypatch.setattr(sim._clearance, "clear_for", lambda *a: decisions.append(clear_for(*a)) or decisions[-1])
+        clear_steps = sim._clearance.clear_steps
+        monkeypatch.setattr(sim._clearance, "clear_steps",
+                            lambda *a: decisions.append((clear_steps(*a), a[1])) or decisions[-1][0])
         skipping = _drive(sim, 600)
     monkeypatch.undo()
     with Simulator(world, robot, config, seed=2) as sim:
-        monkeypatch.setattr(sim._clearance, "clear_for", lambda *a: False)
+        monkeypatch.setattr(sim._clearance, "clear_steps", lambda *a: 0)
         detecting = _drive(sim, 600)
-    assert any(decisions) and not all(decisions)  # both paths taken
+    clear = [steps for steps, _ in decisions]
+    assert min(clear) == 0 and any(0 < steps < horizon for steps, horizon in decisions)  # none, some, all
+    assert any(steps == horizon for steps, horizon in decisions)
     assert skipping[1], "the run makes contacts"
     assert skipping[0] == detecting[0] and skipping[1] == detecting[1]
     for a, b in zip(skipping[2], detecting[2], strict=True):
@@ -47,12 +50,13 @@ def test_skipping_collision_detection_changes_nothing(monkeypatch):
 
 def test_clear_only_away_from_everything():
     with Simulator(box_room_spec(), load_robot("giraff", LIDAR_ONLY)) as sim:
-        clearance, still = sim._clearance, np.zeros(3)
+        clearance, middle, still = sim._clearance, np.array([3.0, 2.0, 0.0]), np.zeros(3)
         assert clearance.usable
-        assert clearance.clear_for(sim.data, 10, np.array([3.0, 2.0, 0.0]), still)  # 1.95 m from any wall
-        assert not clearance.clear_for(sim.data, 10, np.array([5.95 - 0.4, 2.0, 0.0]), still)
-        assert not clearance.clear_for(sim.data, 10, np.array([3.0, 2.0, 0.0]), np.array([30.0, 0.0, 0.0]))
-        assert not clearance.clear_for(sim.data, 1000, np.array([3.0, 2.0, 0.0]), still)
+        assert clearance.clear_steps(sim.data, 10, middle, still) == 10  # 1.95 m from any wall
+        assert clearance.clear_steps(sim.data, 10, np.array([5.95 - 0.4, 2.0, 0.0]), still) == 0
+        # 30 m/s: the 1.95 m less the footprint's 0.37 m are crossed within 10 steps of 5 ms
+        assert 0 < clearance.clear_steps(sim.data, 10, middle, np.array([30.0, 0.0, 0.0])) < 10
+        assert 0 < clearance.clear_steps(sim.data, 1000, middle, still) < 1000
 
 
 def test_a_scene_outside_its_assumptions_is_never_clear():
@@ -70,4 +74,4 @@ def test_a_scene_outside_its_assumptions_is_never_clear():
     data = mujoco.MjData(model)
     clearance = ContactClearance(model, model.body("robot").id, 1.0)
     assert not clearance.usable
-    assert not clearance.clear_for(data, 1, np.zeros(3), np.zeros(3))
+    assert clearance.clear_steps(data, 1, np.zeros(3), np.zeros(3)) == 0
