@@ -22,7 +22,7 @@ from numba import njit
 
 DISC, STADIUM, RECT, NEAR = 0.0, 1.0, 2.0, 3.0
 SHAPE_FIELDS = 8
-SPEED_FACTOR = 1.5  # the base's speed exceeds the largest command only by rounding: a wide allowance
+SPEED_FACTOR = 1.5  # over max(base speed, largest command): 1 but for rounding (equal servo gains), sqrt(2) at most
 PAD_M = 0.02  # extra clearance on top of the geoms' margins
 CELL_M = 0.05  # cells of the table of clearances from the fixed geoms
 MAX_CELLS = 1_000_000
@@ -189,7 +189,10 @@ def _clear_steps(steps: int, base_q: np.ndarray, base_v: np.ndarray, robot: np.n
     vx, vy = base_v[0], base_v[1]
     step_m = max(math.sqrt(vx * vx + vy * vy) * robot[2], robot[1]) * robot[3]
     px, py = robot[4] + base_q[0], robot[5] + base_q[1]
-    room = min(_fixed_clearance(px, py, fixed, table_origin, table) - robot[0], steps * step_m)
+    room = _fixed_clearance(px, py, fixed, table_origin, table) - robot[0]
+    if room < steps * step_m:  # the table's bound falls short of the horizon: the exact distance
+        room = _nearest(px, py, fixed) - robot[0]
+    room = min(room, steps * step_m)
     if room <= 0.0:
         return 0
     room = _mocap_room(px, py, robot[0], room, mocap_pos, mocap_quat, mocap, spans, local, types, body_reach)

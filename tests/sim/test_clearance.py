@@ -53,7 +53,8 @@ def test_clear_only_away_from_everything():
         clearance, middle, still = sim._clearance, np.array([3.0, 2.0, 0.0]), np.zeros(3)
         assert clearance.usable
         assert clearance.clear_steps(sim.data, 10, middle, still) == 10  # 1.95 m from any wall
-        assert clearance.clear_steps(sim.data, 10, np.array([5.95 - 0.4, 2.0, 0.0]), still) == 0
+        assert clearance.clear_steps(sim.data, 10, np.array([5.95 - 0.37, 2.0, 0.0]), still) == 0  # touching
+        assert 0 < clearance.clear_steps(sim.data, 10, np.array([5.95 - 0.4, 2.0, 0.0]), still) < 10
         # 30 m/s: the 1.95 m less the footprint's 0.37 m are crossed within 10 steps of 5 ms
         assert 0 < clearance.clear_steps(sim.data, 10, middle, np.array([30.0, 0.0, 0.0])) < 10
         assert 0 < clearance.clear_steps(sim.data, 1000, middle, still) < 1000
