@@ -221,7 +221,7 @@ def _update(leaves: Sequence[DoorLeaf], params: np.ndarray, state: np.ndarray, t
     nearby = _points(nearby_xy, 2)
     blockers = _points(blockers_xyr, 3)
     verdicts = np.empty(len(leaves), dtype=np.int64)
-    verdicts[:] = _DECIDE  # (np.full's Python layer costs more than the fill)
+    verdicts[:] = _DECIDE
     proposals = np.empty(len(leaves))
     if not _update_leaves(params, state, t_s, dt_s, nearby, blockers, verdicts, proposals):
         return

@@ -253,7 +253,7 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                 continue
             inside = abs(pu) <= hu and abs(pv) <= hv
             center = math.atan2(-py, -px)
-            half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv, center)
+            half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv)
             lo, hi = _bin_span(center, half)
             for b in range(lo, hi + 1):
                 bb = b % AZIMUTH_BINS
@@ -267,11 +267,11 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
 
 
 @njit(cache=True)
-def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float, hv: float,
-                     center_rad: float) -> float:
+def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float,
+                     hv: float) -> float:
     """Largest angle between the direction to the centre and the direction to a corner, seen from outside (each
-    the ``atan2`` of the cross and dot products, plus ANGLE_SPARE_RAD so as not to fall short of other roundings
-    of it; ``center_rad`` unused)."""
+    the ``atan2`` of the cross and dot products), plus ANGLE_SPARE_RAD so as not to fall short of other roundings
+    of it, rad."""
     half = 0.0
     for su in (-1.0, 1.0):
         for sv in (-1.0, 1.0):

@@ -32,7 +32,7 @@ _LOCAL_FIELDS = 17  # a mocap geom: position (3) and row-major orientation (9) i
 
 
 class ContactClearance:
-    """Whether the robot can touch nothing during the next physics steps.
+    """For how many of the next physics steps the robot certainly touches nothing.
 
     Args:
         model: the compiled scene.
