@@ -219,6 +219,12 @@ class Crowd:
         """(N,) read-only yaw rates over the last step, rad/s (``yaw_{k+1} = wrap(yaw_k + rate·dt)``)."""
         return read_only_view(self._yaw_rate)
 
+    def motion_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(N, 2) positions (m), (N, 2) velocities (m/s), (N,) yaws (rad) and (N,) yaw rates (rad/s), world frame:
+        the arrays themselves, not read-only views, for readers that only read them (a step replaces these
+        arrays, never changes them)."""
+        return self._pos, self._vel, self._yaw, self._yaw_rate
+
     @property
     def goals(self) -> np.ndarray:
         """(N,) goal node indices (a copy)."""

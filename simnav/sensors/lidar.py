@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from simnav.robot.spec import Lidar2DSensor, Lidar3DSensor
 from simnav.sensors.noise import lidar_noise
@@ -51,22 +52,37 @@ class RayCaster:
         self.planar = in_plane and covered if planar is None else planar and in_plane and covered
         self._azimuth_sensor = np.arctan2(self._dirs[:, 1], self._dirs[:, 0])
         self._azimuth_world = np.empty(len(self._dirs))
+        self._dirs_world, self._rotation_t = np.empty_like(self._dirs), np.empty((3, 3))
+        self._geoms = (model.geom_type, model.geom_size, model.geom_rbound)  # views of the model's arrays
+        self._data, self._poses = None, ()
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """(N,) distances to the first hit along each ray, metres; 0 where nothing is hit within max range."""
-        origin = data.site_xpos[self._site].copy()
-        mat = data.site_xmat[self._site]
-        dirs_world = self._dirs @ mat.reshape(3, 3).T
-        m = self._model
+        if data is not self._data:  # views of the data's site and geom poses, kept while the data is the same
+            self._data, self._poses = data, (data.site_xpos, data.site_xmat, data.geom_xpos, data.geom_xmat)
+        site_xpos, site_xmat, geom_xpos, geom_xmat = self._poses
+        origin, mat = site_xpos[self._site].copy(), site_xmat[self._site]
+        # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
+        np.copyto(self._rotation_t, mat.reshape(3, 3).T)
+        dirs_world = np.matmul(self._dirs, self._rotation_t, out=self._dirs_world)
         if self.planar:
             world_azimuths(self._azimuth_sensor, mat, self._azimuth_world)
-        if not (self.planar and cast_planar(origin, dirs_world, self._azimuth_world, self._seen, m.geom_type,
-                                            m.geom_size, m.geom_rbound, data.geom_xpos, data.geom_xmat,
-                                            self._max_range, self._dist, self._geomid)):
-            mujoco.mj_multiRay(m, data, origin, dirs_world.ravel(), RAY_GROUPS, 1, self._exclude, self._geomid,
-                               self._dist, None, len(self._dirs), self._max_range + 1.0)
-        hit = (self._geomid >= 0) & (self._dist >= 0) & (self._dist <= self._max_range)
-        return np.where(hit, self._dist, 0.0)
+        if not (self.planar and cast_planar(origin, dirs_world, self._azimuth_world, self._seen, *self._geoms,
+                                            geom_xpos, geom_xmat, self._max_range, self._dist, self._geomid)):
+            mujoco.mj_multiRay(self._model, data, origin, dirs_world.ravel(), RAY_GROUPS, 1, self._exclude,
+                               self._geomid, self._dist, None, len(self._dirs), self._max_range + 1.0)
+        return _in_range(self._dist, self._geomid, self._max_range)
+
+
+@njit(cache=True)
+def _in_range(dist: np.ndarray, geomid: np.ndarray, max_range_m: float) -> np.ndarray:
+    """(N,) the ray distances ``dist`` (m) of the rays that hit a geom (``geomid`` >= 0) within [0, max range],
+    else 0."""
+    out = np.empty(dist.shape[0])
+    for i in range(dist.shape[0]):
+        d = dist[i]
+        out[i] = d if geomid[i] >= 0 and d >= 0.0 and d <= max_range_m else 0.0
+    return out
 
 
 def _geoms_rays_see(model: mujoco.MjModel, exclude_body: int) -> np.ndarray:

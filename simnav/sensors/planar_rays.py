@@ -26,6 +26,7 @@ AZIMUTH_BINS = 1024
 RECT, CIRCLE = 0.0, 1.0  # kinds of section rows
 SECTION_FIELDS = 10
 VERTICAL_TOL = 1e-9  # |z| of a unit vector still treated as horizontal (or 1 - |z| as vertical)
+ANGLE_SPARE_RAD = 1e-9  # added to computed angular extents (far below a bin, far above their rounding)
 _TWO_PI = 2.0 * math.pi
 
 
@@ -252,7 +253,7 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                 continue
             inside = abs(pu) <= hu and abs(pv) <= hv
             center = math.atan2(-py, -px)
-            half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv, center)
+            half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv)
             lo, hi = _bin_span(center, half)
             for b in range(lo, hi + 1):
                 bb = b % AZIMUTH_BINS
@@ -266,18 +267,18 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
 
 
 @njit(cache=True)
-def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float, hv: float,
-                     center_rad: float) -> float:
-    """Largest angle between the direction to the centre and the direction to a corner, seen from outside."""
+def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float,
+                     hv: float) -> float:
+    """Largest angle between the direction to the centre and the direction to a corner, seen from outside (each
+    the ``atan2`` of the cross and dot products), plus ANGLE_SPARE_RAD so as not to fall short of other roundings
+    of it, rad."""
     half = 0.0
     for su in (-1.0, 1.0):
         for sv in (-1.0, 1.0):
             kx = -px + su * hu * ux + sv * hv * vx
             ky = -py + su * hu * uy + sv * hv * vy
-            off = math.atan2(ky, kx) - center_rad
-            off = abs(math.atan2(math.sin(off), math.cos(off)))
-            half = max(half, off)
-    return half
+            half = max(half, math.atan2(abs(px * ky - py * kx), -(px * kx + py * ky)))
+    return half + ANGLE_SPARE_RAD
 
 
 @njit(cache=True)

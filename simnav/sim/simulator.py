@@ -26,6 +26,7 @@ from simnav.sensors.lidar import Lidar2D, Lidar3D
 from simnav.sensors.readings import ContactEvent, Reading
 from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
+from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
 from simnav.sim.scene import build_scene
 from simnav.world.footprint import obstacle_segments
@@ -73,6 +74,9 @@ class Simulator:
         motor_dt = self._motor_substeps * self._dt_s
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
+        self._clearance = ContactClearance(self.model, self.index.robot_body, drive.max_v_m_s)
+        flags = self.model.opt.disableflags
+        self._contact_flags = (flags, flags | mujoco.mjtDisableBit.mjDSBL_CONTACT)  # (detecting, skipping)
         self.sensors = self._make_sensors()
         self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
         self._sees_scene = [not isinstance(s, WheelEncoders) for s in self.sensors]
@@ -251,17 +255,34 @@ class Simulator:
     def _run_until(self, end: int) -> list[Reading]:
         """Run the physics up to step ``end`` in stretches of constant controls, doing what is due after each;
         returns the readings delivered meanwhile, oldest first."""
+        try:
+            return self._stretches(end)
+        finally:
+            self.model.opt.disableflags = self._contact_flags[0]
+
+    def _stretches(self, end: int) -> list[Reading]:
+        """:meth:`_run_until`'s loop (it may leave MuJoCo's collision detection switched off)."""
         delivered: list[Reading] = []
         model, data, base_qpos, history = self.model, self.data, self._base_qpos, self._history
         dt, agent, encoders = self._dt_s, self._agent_substeps, self._encoders
+        opt, clearance, flags, skipping = model.opt, self._clearance, self._contact_flags, False
         k = self._step_count
+        clear_until = None  # no contact can arise before this step (None: to be checked, the agents were posed)
         while k < end:
             n = self._steps_to_next_event(k, end)
             # agents move on their own period (their state is one period ahead; poses are interpolated)
             if k % agent == 0:
                 self._step_agents()
+                clear_until = None
             # motor model: latency, then acceleration limits at the motor controller's rate
             self._apply_drive(k)
+            # collision detection, unless the robot can touch nothing during this stretch
+            if clear_until is None:
+                clear_until = k + clearance.clear_steps(data, self._posed_until(k, end) - k, base_qpos,
+                                                        self._base_qvel)
+            if (k + n <= clear_until) != skipping:
+                skipping = not skipping
+                opt.disableflags = flags[skipping]
             if encoders:
                 v0, w0 = self.base_velocity()
             mujoco.mj_step(model, data, n)
@@ -278,9 +299,16 @@ class Simulator:
             # sensors due now, and readings whose latency has passed
             if k >= self._next_due_step:
                 self._capture_due(self.time_s)
+                clear_until = None
             if k >= self._delivery_step:
                 delivered += self._deliver()
         return delivered
+
+    def _posed_until(self, k: int, end: int) -> int:
+        """The step after step ``k`` at which the agents may be posed next (their period, the earliest capture's
+        pause) or the period ends (step ``end``); no stretch goes past it."""
+        agent = self._agent_substeps
+        return min(end, (k // agent + 1) * agent, max(self._next_capture_step, k + 1))
 
     def _apply_drive(self, k: int) -> None:
         """Commands whose latency has passed at step ``k`` take effect; the motor ramps towards the latest one."""
@@ -300,45 +328,43 @@ class Simulator:
 
     def _step_agents(self) -> None:
         """Advance the people, the other robots and the doors by one agent period and pose them at the current time."""
-        dt, crowd, wanderers = self._agent_dt_s, self.crowd, self.wanderers
+        dt, crowd, wanderers, doors = self._agent_dt_s, self.crowd, self.wanderers, self.doors
         people_count, robots = crowd.count, 1 + wanderers.count
         # blockers: circles of the robot and the other robots before this step, then of the people after it;
         # nearby: the people and the robot, then the other robots after their step
         blockers, nearby = np.empty((robots + people_count, 3)), np.empty((people_count + robots, 2))
         circles, circle_vel = blockers[:robots], np.empty((robots, 2))
-        _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m,
-                    wanderers.positions_xy, wanderers.velocities_xy, WANDERER_RADIUS_M)
+        others_xy, others_vel = wanderers.motion_arrays()[:2]
+        _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m, others_xy, others_vel,
+                    WANDERER_RADIUS_M)
         # people (an empty crowd has nothing to step), then the other robots, then the doors
         if people_count:
-            doors = self.doors.segments_xy() if self.doors else None
-            crowd.step(dt, dynamic_segments=doors, circles=circles, circle_velocities=circle_vel)
-        _people_rows(nearby, blockers, crowd.positions_xy, crowd.radius_m, robots)
-        if wanderers.count:
+            crowd.step(dt, dynamic_segments=doors.segments_xy() if doors else None, circles=circles,
+                       circle_velocities=circle_vel)
+        _people_rows(nearby, blockers, crowd.motion_arrays()[0], crowd.radius_m, robots)
+        if robots > 1:
             wanderers.step(dt, nearby[:people_count + 1])
-        if self.doors:
-            nearby[people_count + 1:] = wanderers.positions_xy
-            self.doors.update(self._agent_time_s + dt, dt, nearby, blockers)
+        if doors:
+            nearby[people_count + 1:] = wanderers.motion_arrays()[0]
+            doors.update(self._agent_time_s + dt, dt, nearby, blockers)
         self._agent_time_s += dt
         self._keep_agent_state()
         self._pose_agents_at(self.time_s)
 
     def _keep_agent_state(self) -> None:
         """Fetch the arrays of the people and other robots that poses are interpolated from (the agents replace
-        them when they step)."""
+        them when they step): their mocap rows, positions, velocities, yaws and yaw rates."""
         idx = self.index
-        self._movers = [(rows, agents.positions_xy, agents.velocities_xy, agents.yaws_rad, agents.yaw_rates_rad_s)
-                        for rows, agents in ((idx.pedestrian_mocap, self.crowd), (idx.wanderer_mocap, self.wanderers))
-                        if len(rows)]
+        self._movers = (idx.pedestrian_mocap, *self.crowd.motion_arrays(), idx.wanderer_mocap,
+                        *self.wanderers.motion_arrays())
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        back = max(self._agent_time_s - t_s, 0.0)
-        for rows, xy, vel, yaw, yaw_rate in self._movers:
-            _pose_movers(self._mocap_pos, self._mocap_quat, rows, xy, vel, yaw, yaw_rate, back)
-        _pose_turners(self._mocap_quat, *self._turners, back)
+        _pose_agents(self._mocap_pos, self._mocap_quat, *self._movers, *self._turners,
+                     max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -556,6 +582,18 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
         nearby[i, 0], nearby[i, 1] = x, y
         blockers[robots + i, 0], blockers[robots + i, 1], blockers[robots + i, 2] = x, y, radius_m
     nearby[people, 0], nearby[people, 1] = blockers[0, 0], blockers[0, 1]
+
+
+@njit(cache=True)
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, people: np.ndarray, people_xy: np.ndarray,
+                 people_vel: np.ndarray, people_yaw: np.ndarray, people_rate: np.ndarray, robots: np.ndarray,
+                 robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray, robots_rate: np.ndarray,
+                 doors: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray, back_s: float) -> None:
+    """Pose the mocap bodies ``people``, ``robots`` (:func:`_pose_movers`) and ``doors`` (:func:`_pose_turners`)
+    ``back_s`` before their states (positions, velocities, yaws, yaw rates)."""
+    _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
+    _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
+    _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
 
 
 @njit(cache=True)

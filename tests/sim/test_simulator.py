@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 from shapely.geometry import Point
@@ -215,3 +216,15 @@ def test_teleport_then_capture(box_room):
         assert sim.pose_xy_yaw == pytest.approx((1.0, 2.0, math.pi))
     centre = np.argmin(np.abs(scan.angles_rad))
     assert scan.ranges_m[centre] == pytest.approx(1.0 - 0.22 - 0.05, abs=1e-3)  # facing -x: wall face at 0.05
+
+
+def test_a_robot_at_rest_still_follows_commands(box_room):
+    # the scene skips the static geoms' kinematics through MuJoCo's sleep feature: the actuated robot never sleeps
+    with Simulator(box_room, load_robot("giraff", LIDAR_ONLY)) as sim:
+        assert sim.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
+        for _ in range(40):  # 2 s at rest
+            sim.step(0.0, 0.0)
+        for _ in range(20):
+            sim.step(0.3, 0.0)
+        assert sim.base_velocity()[0] == pytest.approx(0.3, abs=0.01)
+        assert sim.data.ntree_awake == sim.model.ntree
