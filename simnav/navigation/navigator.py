@@ -40,16 +40,6 @@ from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
 
 
-
-def secure_speed_factor(free: float, start: float, end: float, min_fraction: float) -> float:
-    """Speed factor of a path by its normalised collision-free distance ``free``: 0 up to ``start``, then a linear
-    ramp to 1 at ``end`` that keeps at least ``min_fraction`` (all in [0, 1]). With ``min_fraction`` > 0 a robot
-    driving the path reaches ``start`` in finite time; with 0 its speed falls in proportion to what is left and it
-    creeps towards the obstacle for ever."""
-    if free <= start:
-        return 0.0
-    return min(max((free - start) / (end - start), min_fraction), 1.0)
-
 @dataclass(frozen=True)
 class NavigatorConfig:
     """Options of the 3D-PTG navigator; the defaults are the product (after MRPT's 3D sample and §6.C).
@@ -64,9 +54,6 @@ class NavigatorConfig:
         holonomic: ``"nd"`` (default, as in §6.C.6) or ``"vff"``.
         secure_distance_start: below this normalised free distance the chosen path gets speed 0.
         secure_distance_end: above it, full speed (linear ramp in between).
-        secure_distance_min_speed: the ramp keeps at least this fraction of the speed while the free distance is
-            above ``secure_distance_start``: the robot drives on to the secure distance and stops there (the path
-            is then blocked) instead of creeping towards it ever slower, which no stuck or recovery logic notices.
         weight_free_distance: w1 of eq. 6.5 (collision-free distance of the candidate).
         weight_target_angle: w2 (TP-angle between the candidate and the target).
         weight_target_nearness: w3 (closest approach of the candidate's path to the target).
@@ -115,7 +102,6 @@ class NavigatorConfig:
     holonomic: str = "nd"
     secure_distance_start: float = 0.05
     secure_distance_end: float = 0.15
-    secure_distance_min_speed: float = 0.2
     weight_free_distance: float = 0.5
     weight_target_angle: float = 0.2
     weight_target_nearness: float = 8.0
@@ -157,7 +143,6 @@ class NavigatorConfig:
              "footprint_margin_m must be at least half the diagonal of a grid cell (grid_resolution_m / sqrt(2))"),
             (0 <= self.secure_distance_start < self.secure_distance_end <= 1,
              "need 0 <= secure_distance_start < secure_distance_end <= 1"),
-            (0 <= self.secure_distance_min_speed <= 1, "secure_distance_min_speed must be in [0, 1]"),
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
@@ -448,8 +433,8 @@ class ReactiveNavigator3D:
                 lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m, slow_down_near_target=final))
             k, speed = int(decision.direction_k), float(decision.speed)
             free = float(lim[k])
-            speed *= secure_speed_factor(free, cfg.secure_distance_start, cfg.secure_distance_end,
-                                         cfg.secure_distance_min_speed)
+            speed *= float(np.clip((free - cfg.secure_distance_start)
+                                   / (cfg.secure_distance_end - cfg.secure_distance_start), 0.0, 1.0))
             if speed <= 0.0:
                 continue
             score = self._score(space, k, free, k_t, d_t, target_base)

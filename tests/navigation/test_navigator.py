@@ -9,7 +9,7 @@ import pytest
 
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, sort_into_bands
-from simnav.navigation.navigator import NavCommand, NavigatorConfig, ReactiveNavigator3D, secure_speed_factor
+from simnav.navigation.navigator import NavCommand, NavigatorConfig, ReactiveNavigator3D
 from simnav.navigation.ptgspace import PTGSpace
 
 BASE = Band("base", 0.0, 0.5, np.array([[0.3, -0.3], [0.3, 0.3], [-0.3, 0.3], [-0.3, -0.3]]))
@@ -234,23 +234,3 @@ def test_no_turning_in_place_with_an_obstacle_inside_the_turning_circle(cache_di
     poses, commands = drive(nav, obstacles, (0.0, -2.0), 5.0)
     assert not any(c.state == "turning" for c in commands)
     assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
-
-
-
-def test_the_secure_distance_is_reached_in_finite_time_not_approached_for_ever() -> None:
-    assert secure_speed_factor(0.05, 0.05, 0.15, 0.2) == 0.0
-    assert secure_speed_factor(0.051, 0.05, 0.15, 0.2) == 0.2
-    assert secure_speed_factor(0.12, 0.05, 0.15, 0.2) == pytest.approx(0.7)
-    assert secure_speed_factor(0.5, 0.05, 0.15, 0.2) == 1.0
-
-    def steps_to_stop(min_fraction: float) -> int:
-        free, rate = 0.15, 0.6 * 0.1 / 3.0  # driving at 0.6 m/s with 0.1 s steps along a 3 m horizon
-        for k in range(10_000):
-            factor = secure_speed_factor(free, 0.05, 0.15, min_fraction)
-            if factor == 0.0:
-                return k
-            free -= rate * factor
-        return 10_000
-
-    assert steps_to_stop(0.2) < 30
-    assert steps_to_stop(0.0) == 10_000  # the old ramp: ever slower, never there
