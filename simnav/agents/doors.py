@@ -220,8 +220,7 @@ def _update(leaves: Sequence[DoorLeaf], params: np.ndarray, state: np.ndarray, t
     """Advance the leaves whose (D, ·) parameters and state these are (see :func:`_update_leaves`)."""
     nearby = _points(nearby_xy, 2)
     blockers = _points(blockers_xyr, 3)
-    verdicts = np.empty(len(leaves), dtype=np.int64)
-    verdicts[:] = _DECIDE
+    verdicts = np.full(len(leaves), _DECIDE, dtype=np.int64)
     proposals = np.empty(len(leaves))
     if not _update_leaves(params, state, t_s, dt_s, nearby, blockers, verdicts, proposals):
         return
