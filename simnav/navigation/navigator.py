@@ -6,7 +6,9 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
 2. for every path family (PTG), the TP-NavLimits of each band from that band's collision grid, combined by the
    minimum over bands (eq. 6.4);
 3. the target (the furthest waypoint ahead that a PTG reports reachable) into each TP-space; the holonomic method
-   (ND or VFF) picks a direction and a speed per PTG; the secure-distance ramp scales the speed;
+   (ND or VFF) picks a direction and a speed per PTG, and the target's own path is a second candidate when it is
+   free up to the target (ND's filters drop gaps narrower than ceil(1% N) paths, such as a doorway that only one
+   path passes); the secure-distance ramp scales the speed;
 4. the best candidate by the weighted factors f1-f4 (eq. 6.5): collision-free distance, TP-angle to the target,
    closest approach of the path to the target, similarity to the previous command;
 5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
@@ -34,7 +36,7 @@ import numpy as np
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
 from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
-from simnav.navigation.holonomic import HolonomicInput
+from simnav.navigation.holonomic import HolonomicInput, NDConfig
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 
 STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
@@ -84,7 +86,8 @@ class NavigatorConfig:
         turn_in_place_stop_rad: ... until it lies within this, or a path reaches it, rad.
         turn_in_place_retry_s: after turning in place, the robot turns in place again only once it has moved
             ``turn_in_place_retry_m`` or after this long: when the paths the holonomic method picks turn away from
-            the target, they keep the lead for a while instead of the two taking turns for ever, s.
+            the target, they keep the lead for a while instead of the two taking turns for ever (unless no path
+            moves at all: then turning beats waiting), s.
         turn_in_place_retry_m: ... or once it has moved this far, m.
         stuck_timeout_s: the navigator reports ``stuck`` when the distance to the waypoint it aims at has not
             improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
@@ -346,7 +349,8 @@ class ReactiveNavigator3D:
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
         best, direct = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
         # No path reaches a target far off the heading: turn in place towards it if the turning circle is free
-        if self._should_turn(stamp_s, T_odom_base, target_base, direct, xy, ptr):
+        stalled = best is None or best.speed <= 0.0
+        if self._should_turn(stamp_s, T_odom_base, target_base, direct, xy, ptr, stalled):
             self._blocked_since_s = None
             w = math.copysign(self.max_w_rad_s, float(target_base[1]))
             w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
@@ -427,32 +431,41 @@ class ReactiveNavigator3D:
         best: _Candidate | None = None
         direct = False
         for i, (space, lim) in enumerate(zip(self._spaces, limits, strict=True)):
-            k_t, d_t, _ = space.inverse_map(float(target_base[0]), float(target_base[1]))
-            direct = direct or float(lim[k_t]) >= min(d_t + 0.01, 1.0)
-            decision = self._holonomic[i].navigate(HolonomicInput.toward_path(
-                lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m, slow_down_near_target=final))
-            k, speed = int(decision.direction_k), float(decision.speed)
-            free = float(lim[k])
-            speed *= float(np.clip((free - cfg.secure_distance_start)
-                                   / (cfg.secure_distance_end - cfg.secure_distance_start), 0.0, 1.0))
-            if speed <= 0.0:
-                continue
-            score = self._score(space, k, free, k_t, d_t, target_base)
-            if best is None or score > best.score:
-                best = _Candidate(i, k, speed, free, score)
+            k_t, d_t, exact = space.inverse_map(float(target_base[0]), float(target_base[1]))
+            on_path = exact or d_t >= 1.0  # a path reaches the target, or heads for it beyond the horizon
+            direct = direct or (on_path and float(lim[k_t]) >= min(d_t + 0.01, 1.0))
+            hol = HolonomicInput.toward_path(lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m,
+                                             slow_down_near_target=final)
+            decision = self._holonomic[i].navigate(hol)
+            choices = [(int(decision.direction_k), float(decision.speed))]
+            if exact and int(decision.direction_k) != k_t and float(lim[k_t]) >= d_t + 0.01:
+                # the target's own path, free up to the target: a doorway that only this path passes is a gap
+                # too narrow for ND's filters (they ask for ceil(1% N) paths, or ±ceil(2% N) to go straight)
+                nearness = hol.target_nearness(_ND.target_slow_approaching_distance_m)
+                choices.append((k_t, _target_path_speed(lim, k_t) * nearness))
+            for k, speed in choices:
+                free = float(lim[k])
+                speed *= float(np.clip((free - cfg.secure_distance_start)
+                                       / (cfg.secure_distance_end - cfg.secure_distance_start), 0.0, 1.0))
+                if speed <= 0.0:
+                    continue
+                score = self._score(space, k, free, k_t, d_t, target_base, on_path)
+                if best is None or score > best.score:
+                    best = _Candidate(i, k, speed, free, score)
         return best, direct
 
     def _should_turn(self, stamp_s: float, T_odom_base: np.ndarray, target_base: np.ndarray, direct: bool,
-                     xy: np.ndarray, ptr: np.ndarray) -> bool:
+                     xy: np.ndarray, ptr: np.ndarray, stalled: bool = False) -> bool:
         """Turn in place: no path reaches the target, it lies beyond ``turn_in_place_start_rad`` off the heading
         (once turning: beyond ``turn_in_place_stop_rad``), no obstacle of any band is within the band's turning
         circle (its section's circumradius plus the footprint margin) and, to start, the last turn in place is
-        ``turn_in_place_retry_s`` or ``turn_in_place_retry_m`` away."""
+        ``turn_in_place_retry_s`` or ``turn_in_place_retry_m`` away, unless no path moves (``stalled``): turning
+        beats waiting."""
         cfg = self.config
         x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
         if not cfg.turn_in_place:
             return False
-        if not self._turning and self._turn_end is not None:
+        if not self._turning and self._turn_end is not None and not stalled:
             t_end, x_end, y_end = self._turn_end
             if stamp_s - t_end < cfg.turn_in_place_retry_s and math.hypot(x - x_end, y - y_end) < \
                     cfg.turn_in_place_retry_m:
@@ -466,12 +479,14 @@ class ReactiveNavigator3D:
         self._turning = turning
         return turning
 
-    def _score(self, space, k: int, free: float, k_t: int, d_t: float, target_base: np.ndarray) -> float:
-        """Eq. 6.5 with the factors of §6.C.5 (as MRPT's scalarisation: larger is better)."""
+    def _score(self, space, k: int, free: float, k_t: int, d_t: float, target_base: np.ndarray,
+               on_path: bool = True) -> float:
+        """Eq. 6.5 with the factors of §6.C.5 (as MRPT's scalarisation: larger is better); ``on_path``: whether a
+        path of this PTG reaches the target (else ``d_t`` is the cost of a continuation off the PTG's paths)."""
         cfg = self.config
         n = space.num_paths
         # f1: collision-free distance (saturates once the path reaches the target)
-        f1 = 1.0 if free > d_t + 0.05 else free
+        f1 = 1.0 if on_path and free > d_t + 0.05 else free
         # f2: TP-angle between candidate and target, circular in k
         dk = abs(k - k_t)
         f2 = math.exp(-min(dk, n - dk) / (n / 10.0))
@@ -482,9 +497,9 @@ class ReactiveNavigator3D:
         v, w = space.command(k)
         v0, w0 = self._last_cmd
         f4 = min(math.exp(-abs(v - v0) / (0.2 * self.max_v_m_s)), math.exp(-abs(w - w0) / (0.2 * self.max_w_rad_s)))
-        # reaching the target within the free distance
+        # reaching the target within the free distance (along a path of this PTG)
         e = max(0.0, d_t)
-        f0 = 1.0 / (1.0 + e**2) if free > e else 0.0
+        f0 = 1.0 / (1.0 + e**2) if on_path and free > e else 0.0
         score = (cfg.weight_free_distance * f1 + cfg.weight_target_angle * f2 + cfg.weight_target_nearness * f3
                  + cfg.weight_hysteresis * f4 + cfg.weight_target_distance * f0)
         return score * (cfg.backward_priority if space.backward else 1.0)
@@ -596,6 +611,18 @@ class ReactiveNavigator3D:
                  and self._last_stamp_s - self._best_distance_stamp_s > self.config.stuck_timeout_s
                  and state not in ("reached", "idle"))
         return NavCommand(v, w, state, stuck, target_index, ptg, k, free, speed, time.perf_counter() - t0)
+
+
+_ND = NDConfig()
+
+
+def _target_path_speed(lim: np.ndarray, k_t: int) -> float:
+    """Relative speed along the target's own path k_t, by ND's risk rule (mean TP-obstacle within
+    ``risk_evaluation_sectors_percent`` of N paths over ``risk_evaluation_distance``, at most 1)."""
+    n = lim.shape[0]
+    half = int(math.floor(_ND.risk_evaluation_sectors_percent * n + 0.5))
+    risk = float(np.mean(lim[max(k_t - half, 0):min(k_t + half, n - 1) + 1]))
+    return min(1.0, risk / _ND.risk_evaluation_distance)
 
 
 _TRAIL_STEP_M = 0.02

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass
 from functools import cached_property
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
@@ -295,13 +296,17 @@ class PTG:
 
     @cached_property
     def _continuation_samples(self) -> tuple[np.ndarray, ...]:
-        """Flat (k, x, y, motion heading, d) of every 4th sample (n >= 1) and each path's last sample."""
+        """Flat (k, x, y, motion heading, d) of every 4th sample (n >= 1) and each path's last sample, in order of
+        increasing d (the continuation's search stops at the first sample farther along than the best cost)."""
         N, S = self.dist_m.shape
         n = np.arange(S)[None]
         last = (self.num_samples - 1)[:, None]
         k_idx, n_idx = np.nonzero((n >= 1) & (n <= last) & (((n - 1) % _CONTINUATION_STRIDE == 0) | (n == last)))
+        order = np.argsort(self.dist_m[k_idx, n_idx], kind="stable")
+        k_idx, n_idx = k_idx[order], n_idx[order]
         heading = self.poses[k_idx, n_idx, 2] + np.where(self.vw[k_idx, n_idx, 0] < 0, np.pi, 0.0)
-        return (k_idx, self.poses[k_idx, n_idx, 0], self.poses[k_idx, n_idx, 1], heading, self.dist_m[k_idx, n_idx])
+        return (k_idx, np.ascontiguousarray(self.poses[k_idx, n_idx, 0]),
+                np.ascontiguousarray(self.poses[k_idx, n_idx, 1]), heading, self.dist_m[k_idx, n_idx])
 
     @property
     def _turn_cost_m_per_rad(self) -> float:
@@ -315,20 +320,11 @@ class PTG:
             ``(k (F,), cost_m (F,), straight_m (F,))``.
         """
         k_idx, x, y, heading, d = self._continuation_samples
-        ks, costs, gaps = [], [], []
-        chunk = max(1, 1_000_000 // len(k_idx))
-        for f0 in range(0, len(p), chunk):
-            q = p[f0:f0 + chunk]
-            dx, dy = q[:, 0, None] - x[None], q[:, 1, None] - y[None]  # (F, C)
-            gap = np.hypot(dx, dy)
-            turn = np.abs(wrap_angle(np.arctan2(dy, dx) - heading[None]))
-            cost = d[None] + self._turn_cost_m_per_rad * turn + gap
-            best = np.argmin(cost, axis=1)
-            rows = np.arange(len(q))
-            ks.append(k_idx[best])
-            costs.append(cost[rows, best])
-            gaps.append(gap[rows, best])
-        return np.concatenate(ks), np.concatenate(costs), np.concatenate(gaps)
+        q = np.ascontiguousarray(np.asarray(p, dtype=np.float64).reshape(-1, 2))
+        best = np.empty(len(q), dtype=np.int64)
+        cost, gap = np.empty(len(q)), np.empty(len(q))
+        _continuation_kernel(q, x, y, heading, d, self._turn_cost_m_per_rad, best, cost, gap)
+        return k_idx[best], cost, gap
 
     def _refine_on_segments(self, p: np.ndarray, k: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Projects each point onto the two path segments around its nearest sample.
@@ -451,3 +447,27 @@ def _simulate(cfg: PTGConfig, alphas: np.ndarray) -> tuple[np.ndarray, np.ndarra
     pad = np.arange(S)[None, :] >= count[:, None]
     buf[pad] = np.repeat(buf[np.arange(N), count - 1][:, None, :], S, axis=1)[pad]
     return buf[..., :3].copy(), buf[..., 4].copy(), buf[..., 3].copy(), count
+
+
+@njit(cache=True)
+def _continuation_kernel(p: np.ndarray, x: np.ndarray, y: np.ndarray, heading: np.ndarray, d: np.ndarray,
+                         turn_cost_m_per_rad: float, best: np.ndarray, cost: np.ndarray, gap: np.ndarray) -> None:
+    """For each point of p (F, 2), the sample j minimising ``d_j + turn_cost·|turn_j| + gap_j`` into (best, cost,
+    gap); samples come in order of increasing d_j, so the search stops once d_j alone reaches the best cost, and
+    skips the angle wherever ``d_j + gap_j`` does (the first sample wins ties)."""
+    for i in range(p.shape[0]):
+        px, py = p[i, 0], p[i, 1]
+        best_j, best_cost, best_gap = 0, math.inf, 0.0
+        for j in range(d.shape[0]):
+            if d[j] >= best_cost:
+                break
+            dx, dy = px - x[j], py - y[j]
+            g = math.sqrt(dx * dx + dy * dy)
+            if d[j] + g >= best_cost:
+                continue
+            turn = math.atan2(dy, dx) - heading[j]
+            turn = abs(turn - 2.0 * math.pi * math.floor((turn + math.pi) / (2.0 * math.pi)))
+            c = d[j] + turn_cost_m_per_rad * turn + g
+            if c < best_cost:
+                best_j, best_cost, best_gap = j, c, g
+        best[i], cost[i], gap[i] = best_j, best_cost, best_gap

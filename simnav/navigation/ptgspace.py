@@ -188,8 +188,10 @@ class PTGSpace:
     def inverse_map_many(self, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(k (P,), normalised distance (P,), exact (P,)) of (P, 2) base-frame points; every point gets an answer.
 
-        Within the horizon: the PTG's inverse map (from a table at 5 cm). Beyond it: the path whose end is
-        cheapest to reach plus the straight line from there (``d > 1``, not exact).
+        Within the horizon: the PTG's inverse map (from a table at 5 cm); a point off every path there (behind a
+        forward-only family, inside its tightest turn) gets the PTG's cheapest "path, turn, straight" continuation
+        (not exact; its nearest sample would say "distance 0" of a point behind the robot). Beyond the horizon:
+        the path whose end is cheapest to reach plus the straight line from there (``d > 1``, not exact).
         """
         p = np.ascontiguousarray(np.asarray(xy_m, dtype=np.float64).reshape(-1, 2))
         k = np.empty(len(p), dtype=np.int64)
@@ -198,6 +200,10 @@ class PTGSpace:
         lk = self._lookup
         _inverse_map_kernel(p, _LOOKUP_RESOLUTION_M, lk.mid, lk.n, lk.half_m, lk.k, lk.d, lk.exact, self._ends,
                             self._end_dist, self.ptg.ref_distance_m, k, d, exact)
+        off = np.nonzero(~exact & (d <= 1.0))[0]
+        if len(off):
+            k_off, cost_m, _ = self.ptg._continuation(p[off])
+            k[off], d[off] = k_off, cost_m / self.ptg.ref_distance_m
         return k, d, exact
 
     # ------------------------------------------------------------------------------------------ path queries

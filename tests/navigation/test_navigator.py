@@ -142,6 +142,58 @@ def _long_table() -> np.ndarray:
     return np.concatenate([top, *legs])
 
 
+def test_the_navigator_maps_a_point_off_every_path_as_the_ptg_does(cache_dir) -> None:
+    # behind the robot a forward-only CS path never passes: not exact, and the distance of turning towards it (the
+    # table's nearest path sample, the start of every path, would say "distance 0": a target already reached)
+    space = PTGSpace("CS", [BASE, MAST], V_MAX, W_MAX, 61, 3.0, 0.05, cache_dir)
+    rng = np.random.default_rng(5)
+    pts = np.vstack([[[-0.5, -0.2], [-0.2, 0.0], [-1.0, 0.3]], rng.uniform(-2.0, 2.0, (200, 2))])  # in the horizon
+    k, d, exact = space.inverse_map_many(pts)
+    k_ptg, d_ptg, exact_ptg, _ = space.ptg.inverse_map_ws2tp_many(pts)
+    assert not exact[:3].any() and np.all(d[:3] > 0.3 / 3.0)
+    off = ~exact & ~exact_ptg  # off every path by both (the table decides at 5 cm cell centres)
+    assert off.sum() > 50
+    np.testing.assert_allclose(d[off], d_ptg[off], atol=0.05 / 3.0)
+
+
+@pytest.mark.parametrize("scene", ["open", "wall ahead", "wall ahead and left", "wall ahead and right", "corridor"])
+@pytest.mark.parametrize("target", [(-0.6, 0.1), (-1.0, 0.0), (-0.8, -0.3)])
+def test_a_target_just_behind_the_robot_is_reached_by_turning_towards_it(cache_dir, scene, target) -> None:
+    # a dead end or a corridor with the target 0.6-1 m behind (a doorway's waypoint overshot): no forward path
+    # gets there, so the robot turns (in place where a wall is close) instead of creeping or waiting
+    walls = {"open": [], "wall ahead": [wall(0.5, -3, 0.5, 3)],
+             "wall ahead and left": [wall(0.5, -3, 0.5, 3), wall(-3, 0.5, 0.5, 0.5)],
+             "wall ahead and right": [wall(0.5, -3, 0.5, 3), wall(-3, -0.6, 0.5, -0.6)],
+             "corridor": [wall(-3, 0.55, 3, 0.55), wall(-3, -0.55, 3, -0.55)]}[scene]
+    obstacles = np.vstack(walls) if walls else np.zeros((0, 3))
+    if scene in ("wall ahead and right", "corridor") and target == (-0.8, -0.3):
+        target = (-0.8, 0.0)  # the robot could not stand on the other one
+    poses, commands = drive(make_nav(cache_dir), obstacles, target, 15.0)
+    assert commands[-1].state == "reached"
+    if len(obstacles):
+        assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
+
+
+def test_a_one_path_slot_to_the_target_is_taken_where_nd_sees_no_gap(cache_dir) -> None:
+    # a doorway seen at an angle: only the target's own path gets through; ND's filters want wider gaps
+    from simnav.navigation.holonomic import HolonomicInput, HolonomicND
+
+    nav = make_nav(cache_dir, num_paths=121)
+    target_base = np.array([1.2, -0.5])
+    limits = []
+    for space in nav._spaces:
+        k_t, d_t, exact = space.inverse_map(*target_base)
+        assert exact
+        lim = np.full(space.num_paths, 0.1)
+        lim[k_t] = min(1.0, d_t + 0.2)
+        limits.append(lim)
+        nd = HolonomicND().navigate(HolonomicInput.toward_path(lim, k_t, d_t, ref_distance_m=3.0))
+        assert nd.direction_k != k_t or nd.speed == 0.0  # ND alone would not take it
+    best, direct = nav._best_candidate(target_base, limits, final=False)
+    assert direct and best is not None and best.speed > 0.0
+    assert best.k == nav._spaces[best.ptg].inverse_map(*target_base)[0]
+
+
 def test_a_table_the_robot_fits_under_is_passable_in_3d_and_blocked_in_2d(cache_dir) -> None:
     from simnav.navigation.bands import planar_bands
     from simnav.robot.spec import Prism, RobotSpec
