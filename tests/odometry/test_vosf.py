@@ -23,6 +23,7 @@ import pytest
 from simnav.errors import ConfigError
 from simnav.geometry import se3
 from simnav.geometry.camera import R_BODY_OPTICAL
+from simnav.odometry import vosf_kernels
 from simnav.odometry.base import CameraOdometryEstimate
 from simnav.odometry.vosf import JointVOSF, VOSFConfig, segment_background
 from simnav.odometry.vosf_kernels import exp_compose
@@ -429,3 +430,28 @@ def test_config_defaults_are_the_papers_and_overrides_are_checked():
     with pytest.raises(ConfigError):
         JointVOSF(static_below=0.9, moving_above=0.1)
     assert isinstance(JointVOSF().process(frame(CAM0, [], 0.0)), CameraOdometryEstimate)
+
+
+def test_a_predicted_alignment_skips_the_coarsest_level(monkeypatch):
+    heights = []  # (pair, mode, rows of the level) of every linearisation
+    linearize = vosf_kernels.linearize
+
+    def spy(*args):
+        heights.append((pair, args[12], args[4].shape[0]))
+        return linearize(*args)
+
+    monkeypatch.setattr(vosf_kernels, "linearize", spy)
+    vo = JointVOSF()  # QQVGA: levels of 120, 60, 30 and 15 rows
+    steps = []
+    for pair in range(3):
+        steps.append(vo.process(frame(CAM0 @ se3.exp(XI_CAM * pair), furniture(), pair * DT_S)))
+    robust = {p: {h for q, mode, h in heights if q == p and mode == vosf_kernels.MODE_ROBUST} for p in (1, 2)}
+    # Without a prediction (first pair) the robust odometry starts at 15 rows; every solve that starts from a
+    # prediction (the robust odometry from then on, the refined and cluster solves always) at 30.
+    assert robust[1] == {120, 60, 30, 15} and robust[2] == {120, 60, 30}
+    assert min(h for q, mode, h in heights if mode != vosf_kernels.MODE_ROBUST) == 30
+    for a, b in zip(steps, steps[1:]):
+        t_err, r_err = motion_error(se3.inverse(a.T_odom_camera) @ b.T_odom_camera, se3.exp(XI_CAM))
+        assert t_err < 2e-3 and r_err < 0.05
+    with pytest.raises(ConfigError):
+        JointVOSF(predicted_min_level_height_px=10)
