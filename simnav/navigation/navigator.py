@@ -8,7 +8,9 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
 3. the target (the furthest waypoint ahead that a PTG reports reachable) into each TP-space; the holonomic method
    (ND or VFF) picks a direction and a speed per PTG, and the target's own path is a second candidate when it is
    free up to the target (ND's filters drop gaps narrower than ceil(1% N) paths, such as a doorway that only one
-   path passes); the secure-distance ramp scales the speed;
+   path passes); a path at the seam of TP-space (|alpha| > 135 degrees: turning around) gives way to its mirror image
+   when that keeps the robot turning the way it already turns (ND sees the valley behind the robot as two, and the
+   side it picks flips as the robot turns); the secure-distance ramp scales the speed;
 4. the best candidate by the weighted factors f1-f4 (eq. 6.5): collision-free distance, TP-angle to the target,
    closest approach of the path to the target, similarity to the previous command;
 5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
@@ -36,7 +38,7 @@ import numpy as np
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
 from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
-from simnav.navigation.holonomic import HolonomicInput, NDConfig
+from simnav.navigation.holonomic import HolonomicInput, NDConfig, index_to_alpha
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 
 STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
@@ -250,6 +252,7 @@ class ReactiveNavigator3D:
         self._goal_blocked_steps = 0
         self._turning = False
         self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
+        self._seam_side = 0  # the way the robot turns on paths across alpha = +-pi: +1 left, -1 right, 0 none
         self._trail: deque[tuple[float, float, float, float]] = deque()  # (stamp, x, y, yaw) of recent poses
         for method in getattr(self, "_holonomic", []):
             method.reset()
@@ -280,6 +283,7 @@ class ReactiveNavigator3D:
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = None
         self._turning, self._turn_end = False, None
+        self._seam_side = 0
 
     def set_target(self, target_xy: Sequence[float]) -> None:
         """Go to one target (fixed frame, m)."""
@@ -353,6 +357,7 @@ class ReactiveNavigator3D:
         if self._should_turn(stamp_s, T_odom_base, target_base, direct, xy, ptr, stalled):
             self._blocked_since_s = None
             w = math.copysign(self.max_w_rad_s, float(target_base[1]))
+            self._seam_side = 1 if w > 0 else -1
             w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
             return self._output(0.0, w, dt, t0, "turning", target_index)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
@@ -361,6 +366,8 @@ class ReactiveNavigator3D:
         self._blocked_since_s = None
         space = self._spaces[best.ptg]
         v, w = space.command(best.k)
+        at_seam = abs(index_to_alpha(best.k, space.num_paths)) > _SEAM_RAD
+        self._seam_side = (1 if w > 0 else -1) if at_seam and w != 0.0 else 0
         speed = best.speed * self._approach_speed_factor(T_odom_base)
         speed *= self._point_speed_scale(v, w, self._obstacle_speed_factor(band_xy))
         v, w = self._limit_speeds(v * speed, w * speed)
@@ -437,7 +444,8 @@ class ReactiveNavigator3D:
             hol = HolonomicInput.toward_path(lim, k_t, d_t, ref_distance_m=cfg.ref_distance_m,
                                              slow_down_near_target=final)
             decision = self._holonomic[i].navigate(hol)
-            choices = [(int(decision.direction_k), float(decision.speed))]
+            choices = [(self._keep_seam_side(space, int(decision.direction_k), lim, target_base),
+                        float(decision.speed))]
             if exact and int(decision.direction_k) != k_t and float(lim[k_t]) >= d_t + 0.01:
                 # the target's own path, free up to the target: a doorway that only this path passes is a gap
                 # too narrow for ND's filters (they ask for ceil(1% N) paths, or ±ceil(2% N) to go straight)
@@ -453,6 +461,23 @@ class ReactiveNavigator3D:
                 if best is None or score > best.score:
                     best = _Candidate(i, k, speed, free, score)
         return best, direct
+
+    def _keep_seam_side(self, space, k: int, lim: np.ndarray, target_base: np.ndarray) -> int:
+        """Path k, or its mirror image when k lies at the seam of TP-space and turns the other way.
+
+        ND sees the valley behind the robot, across alpha = +-pi, as two gaps (as MRPT's does), and which one wins
+        flips as the robot turns; a path at the seam (``|alpha| > _SEAM_RAD``) and its mirror (``k <-> N-1-k``)
+        head for the same region behind the robot, turning opposite ways. While the mirror is nearly as free
+        (90 %), the robot keeps turning the way it already turns at the seam, else towards the target's side.
+        """
+        n = space.num_paths
+        if abs(index_to_alpha(k, n)) <= _SEAM_RAD:
+            return k
+        side = self._seam_side or (1 if target_base[1] >= 0.0 else -1)
+        if math.copysign(1.0, space.command(k)[1]) == side:
+            return k
+        mirror = n - 1 - k
+        return mirror if float(lim[mirror]) >= 0.9 * float(lim[k]) else k
 
     def _should_turn(self, stamp_s: float, T_odom_base: np.ndarray, target_base: np.ndarray, direct: bool,
                      xy: np.ndarray, ptr: np.ndarray, stalled: bool = False) -> bool:
@@ -614,6 +639,7 @@ class ReactiveNavigator3D:
 
 
 _ND = NDConfig()
+_SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
 
 
 def _target_path_speed(lim: np.ndarray, k_t: int) -> float:

@@ -194,6 +194,26 @@ def test_a_one_path_slot_to_the_target_is_taken_where_nd_sees_no_gap(cache_dir) 
     assert best.k == nav._spaces[best.ptg].inverse_map(*target_base)[0]
 
 
+def test_turning_around_keeps_its_direction_across_the_seam_of_tp_space(cache_dir) -> None:
+    # alpha paths k and N-1-k near +-pi both turn the robot around, one to the left, one to the right
+    nav = make_nav(cache_dir, num_paths=121)
+    alpha = nav._spaces[[s.name for s in nav._spaces].index("alpha")]
+    free = np.ones(alpha.num_paths)
+    left, right = 117, 3
+    assert alpha.command(left)[1] > 0 > alpha.command(right)[1]
+    # nothing decided yet: towards the target's side
+    assert nav._keep_seam_side(alpha, left, free, np.array([-1.0, -0.2])) == right
+    assert nav._keep_seam_side(alpha, left, free, np.array([-1.0, 0.2])) == left
+    # already turning right: keep turning right, even with the target now a little to the left ...
+    nav._seam_side = -1
+    assert nav._keep_seam_side(alpha, left, free, np.array([-1.0, 0.2])) == right
+    # ... unless the mirror path is much less free; paths off the seam are left alone
+    blocked = free.copy()
+    blocked[right] = 0.5
+    assert nav._keep_seam_side(alpha, left, blocked, np.array([-1.0, 0.2])) == left
+    assert nav._keep_seam_side(alpha, 80, free, np.array([-1.0, -0.2])) == 80
+
+
 def test_a_table_the_robot_fits_under_is_passable_in_3d_and_blocked_in_2d(cache_dir) -> None:
     from simnav.navigation.bands import planar_bands
     from simnav.robot.spec import Prism, RobotSpec
