@@ -264,6 +264,8 @@ class Crowd:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
         self._time_s += dt_s
         circ, circ_vel = circle_arrays(circles, circle_velocities)
+        if len(circ) and self._params.circle_clearance_m > 0:  # personal space around robots
+            circ = circ + np.array([0.0, 0.0, self._params.circle_clearance_m])
         self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
         self._move(dt_s, dyn, circ, circ_vel, circles is not None)

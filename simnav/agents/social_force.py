@@ -78,6 +78,9 @@ class SocialForceParams:
             turned into a sideways push, away from the line through the obstacle along that direction (to the
             right when dead centre): people walk around a robot standing in their way instead of stopping in
             front of it, where the plain model balances drive and repulsion. 0 gives plain H&M.
+        circle_clearance_m: personal space people keep from a round obstacle (a robot), beyond touching it: the
+            crowd sees every circle this much larger (repulsion, non-overlap, face-offs), so people pass a robot
+            at arm's length instead of brushing it or standing pressed against it. 0: they may touch.
     """
 
     v0_m2_s2: float = 2.1
@@ -94,6 +97,7 @@ class SocialForceParams:
     wall_merge_angle_deg: float = 45.0
     wall_look_ahead_m: float = 1.0
     circle_steering: float = 1.0
+    circle_clearance_m: float = 0.1
 
     @property
     def cos_half_fov(self) -> float:

@@ -30,6 +30,8 @@ class ReferenceCrowd(Crowd):
 
     def step(self, dt_s, dynamic_segments=None, circles=None, circle_velocities=None) -> None:
         self._time_s += dt_s
+        if circles is not None and len(circles):  # personal space around robots
+            circles = np.asarray(circles, dtype=float).reshape(-1, 3) + [0.0, 0.0, self._params.circle_clearance_m]
         self._reference_plans(dt_s, circles)
         drive = _desired_update(self._dirs, self._target, self._pos, self._yield_s, self._yield_dir, self._speeds,
                                 self._arrived, crowd_module.YIELD_SPEED_FACTOR)
