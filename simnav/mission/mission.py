@@ -347,12 +347,12 @@ class _MissionRunner:
                 row.path_length_ratio = row.distance_m / row.shortest_m
 
     def _intervene(self, row, route: list[int]) -> list[int]:
-        """Stuck: move the robot to the next roadmap node of its route and go on (counted as an intervention)."""
+        """Stuck: move the robot to the next roadmap node of its route that is not in a doorway and go on (counted as
+        an intervention); a robot set down in a doorway, facing along the route, can touch its jambs."""
         graph = self.sim.roadmap
         xy = self._true_pose()[:2, 2]
-        # the route node after the one the robot is closest to (or the goal)
         closest = int(np.argmin(np.linalg.norm(graph.nodes_xy[route] - xy, axis=1)))
-        remaining = route[min(closest + 1, len(route) - 1):]
+        remaining = resume_route(route, closest, self._narrow)
         node = remaining[0]
         nxt = remaining[1] if len(remaining) > 1 else node
         heading = graph.nodes_xy[nxt] - graph.nodes_xy[node]
@@ -557,6 +557,21 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
         if i < len(route) - 1:
             add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
     return np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near)
+
+
+def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray) -> list[int]:
+    """The rest of ``route`` after its node at position ``closest``, from the first later node that is not narrow
+    (or the goal): where an intervention sets the robot down.
+
+    Args:
+        route: node indices in order.
+        closest: position in ``route`` of the node the robot is closest to.
+        narrow: (N,) which nodes are narrow (doorways).
+    """
+    start = min(closest + 1, len(route) - 1)
+    while start < len(route) - 1 and narrow[route[start]]:
+        start += 1
+    return list(route[start:])
 
 
 def _towards(p: np.ndarray, q: np.ndarray) -> np.ndarray:

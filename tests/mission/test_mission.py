@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from simnav.io import read_tum
-from simnav.mission.mission import NAV_LOG_COLUMNS, MissionSettings, mission_robot, run_mission
+from simnav.mission.mission import NAV_LOG_COLUMNS, MissionSettings, mission_robot, resume_route, run_mission
 from simnav.navigation.navigator import STATES
 from simnav.robot import load_robot
 from simnav.world import load_world
@@ -172,3 +172,13 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     np.testing.assert_allclose(xy, [[3, 0], [3, DOOR_APPROACH_M], [3, 2], [3, 2.5]])
     xy, _, _ = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
     np.testing.assert_allclose(xy, [[3, 2.5], [3, 2.25], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])
+
+
+def test_an_intervention_sets_the_robot_down_past_doorways():
+    narrow = np.zeros(10, dtype=bool)
+    narrow[[5, 6]] = True  # a doorway and the node inside it
+    route = [1, 2, 5, 6, 7, 8]
+    assert resume_route(route, 0, narrow) == [2, 5, 6, 7, 8]
+    assert resume_route(route, 1, narrow) == [7, 8]   # not into the doorway
+    assert resume_route(route, 5, narrow) == [8]      # at the goal: stays there
+    assert resume_route([1, 5, 6], 0, narrow) == [6]  # nothing but doorways left: the goal
