@@ -271,21 +271,26 @@ def _nearest_per_direction(ped: np.ndarray, dist: np.ndarray, nx: np.ndarray, ny
 def _merge_group(group: np.ndarray, dist: np.ndarray, nx: np.ndarray, ny: np.ndarray, cos_merge: float,
                  kept: np.ndarray) -> None:
     """Mark (in ``kept``) the points of one pedestrian's group (pair indices, ascending) that no closer point of the
-    group sees within the merge angle: the closest is, those it sees are not, the others are checked against all."""
-    if group.shape[0] == 0:
-        return
-    best = group[0]
-    for k in group:
-        if dist[k] < dist[best]:
-            best = k
-    kept[best] = True
-    for k in group:
-        kx, ky, kd = nx[k], ny[k], dist[k]
-        if k == best or kx * nx[best] + ky * ny[best] > cos_merge:
-            continue
+    group sees within the merge angle.
+
+    The group is ordered by distance first (a stable insertion sort: ties keep the pair order), so the closer
+    points of each are those before it, and its check stops at the first of them that sees it.
+    """
+    g = group.shape[0]
+    order = group.copy()
+    for a in range(1, g):
+        k, d, b = order[a], dist[order[a]], a
+        while b > 0 and dist[order[b - 1]] > d:
+            order[b] = order[b - 1]
+            b -= 1
+        order[b] = k
+    for a in range(g):
+        k = order[a]
+        kx, ky = nx[k], ny[k]
         kept[k] = True
-        for j in group:
-            if kx * nx[j] + ky * ny[j] > cos_merge and (dist[j] < kd or (dist[j] == kd and j < k)):
+        for b in range(a):
+            j = order[b]
+            if kx * nx[j] + ky * ny[j] > cos_merge:
                 kept[k] = False
                 break
 
