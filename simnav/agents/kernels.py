@@ -4,21 +4,23 @@ Written with numpy, one crowd step of 10 people made a few hundred small array o
 index sums), ~1 ms of per-call overhead for a few microseconds of arithmetic. These kernels loop over the same
 data and do the same floating-point operations in the same order as the array formulation in
 :mod:`simnav.agents.social_force` (kept there as the reference and tested against it), so forces and positions
-are identical to the bit. The one operation done outside is ``exp``: numpy's vectorised ``exp`` and libm's (which
-compiled code calls) differ in the last bit for a few per cent of arguments, and the crowd's dynamics carry such
-differences up to metres within a minute, so :func:`exponents` lists the arguments and the caller takes
-``np.exp`` of them. Where only a comparison needs a ``hypot``, a cheaper ``sqrt(dx² + dy²)`` decides unless it
-lies within rounding of the threshold.
+are identical to the bit. The one operation the entry points of the reference leave out is ``exp``: numpy's
+vectorised ``exp`` and libm's (which compiled code calls) differ in the last bit for a few per cent of arguments,
+so :func:`exponents` lists the arguments and :func:`simnav.agents.social_force.social_force_pairs` takes
+``np.exp`` of them. The crowd's own step takes them, and the headings of the velocities, with libm inside one
+call: one step lies within rounding of the reference (the dynamics carry such differences up to metres within a
+minute; the same seed still gives the same crowd). Where only a comparison needs a ``hypot``, a cheaper
+``sqrt(dx² + dy²)`` decides unless it lies within rounding of the threshold.
 
 * :func:`exponents`, then :func:`social_force_kernel`: driving term, pedestrian and round-obstacle repulsion, wall
   repulsion with the merging of nearby wall points and the look-ahead steering.
 * :func:`integrate_kernel`: the semi-implicit Euler step with the speed cap.
 * :func:`resolve_overlaps_kernel`: undo wall crossings, push out of walls, separate pedestrians, push out of
   circles, in the sweeps of :func:`simnav.agents.social_force.resolve_overlaps_pairs`.
-* The step of :class:`simnav.agents.crowd.Crowd` in four calls, around what numpy or the random generator does:
-  :func:`crowd_plan_events` (pauses, waypoints; new goals and pauses are drawn in Python), :func:`crowd_prepare`
-  (desired directions, candidate walls, the ``exp`` arguments), :func:`crowd_walk` (forces, Euler step,
-  projection) and, after numpy's ``arctan2`` of the velocities, :func:`crowd_react` (yaws, face-offs, stuck
+* The step of :class:`simnav.agents.crowd.Crowd` in two calls, around what the random generator does:
+  :func:`crowd_plan_events` (pauses, waypoints; new goals and pauses are drawn in Python), then
+  :func:`crowd_move`: :func:`crowd_prepare` (desired directions, candidate walls, the ``exp`` arguments),
+  :func:`crowd_walk` (forces, Euler step, projection) and :func:`crowd_react` (yaws, face-offs, stuck
   pedestrians). They live here with the functions they call: a cached kernel is not recompiled when a function it
   calls in another file changes.
 
@@ -584,8 +586,8 @@ def exponents(pos: np.ndarray, vel: np.ndarray, offsets: np.ndarray, circles: np
     ``−b/σ`` of the pedestrian pairs (i, j) at ``i·N + j`` and of the pedestrian-circle pairs (i, k) at
     ``N·N + i·C + k``, then ``−d/R`` of the wall pairs (``offsets``, (P, 3) from :func:`wall_offsets` with
     :func:`wall_far_m`; 0 where not needed). numpy's vectorised ``exp`` and libm's differ in the last bit for a
-    few per cent of arguments, so the caller takes ``np.exp`` of these, as the numpy formulation does, and the
-    dynamics stay bit-identical to it. The ellipses, (4, N·N + N·C), are (b, |r|, |r − s|, |r| + |r − s|) of the
+    few per cent of arguments, so a caller that must match the numpy formulation to the bit takes ``np.exp`` of
+    these, as it does. The ellipses, (4, N·N + N·C), are (b, |r|, |r − s|, |r| + |r − s|) of the
     pedestrian and pedestrian-circle pairs at the same indices (:func:`_ellipse`), for the forces.
     """
     n, c, m = pos.shape[0], circles.shape[0], offsets.shape[0]
@@ -941,6 +943,52 @@ def crowd_walk(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, drive: np.nda
     for i in range(pos.shape[0]):
         new_vel[i, 0], new_vel[i, 1] = (resolved[i, 0] - pos[i, 0]) / dt_s, (resolved[i, 1] - pos[i, 1]) / dt_s
     return resolved, new_vel
+
+
+@njit(cache=True)
+def crowd_move(motion: tuple, intent: tuple, watch: tuple, scene: tuple, p: np.ndarray, rules: tuple,
+               time_s: float, dt_s: float) -> tuple:
+    """The crowd step after the plans in one call: :func:`crowd_prepare`, the exponentials, :func:`crowd_walk`,
+    the headings of the new velocities and :func:`crowd_react`.
+
+    Args:
+        motion: (positions (N, 2) m, velocities (N, 2) m/s, yaws (N,) rad), replaced by the step.
+        intent: (desired directions (N, 2), targets (N, 2) m, yield times (N,) s, yield directions (N, 2), desired
+            speeds (N,) m/s, arrived (N,) bool), changed in place.
+        watch: (blocked times (N,) s, priorities (N,), progress anchors (N, 2) m and their times (N,) s), changed
+            in place.
+        scene: (the near ``grid`` of :func:`grid_pairs`, ``walls`` = (start, delta, inv_len2, number of static
+            walls M), ``reach`` of :func:`crowd_walk`, moving segments (D, 2, 2) m, circles (C, 3) m, their
+            velocities (C, 2) m/s, whether there are circles).
+        p: the force parameters (:func:`simnav.agents.social_force.kernel_params`).
+        rules: (yield speed factor, steer, speed cap factor, radius m, projection sweeps, slack m, and the
+            ``turning``, ``blocking`` and ``stuck`` rules of :func:`crowd_react`).
+        time_s: the crowd's time after the step, s. dt_s: the step, s.
+
+    Returns:
+        New positions (N, 2) m, velocities (N, 2) m/s, yaws (N,) rad, yaw rates (N,) rad/s, and the (E, 2) events
+        of :func:`crowd_react`.
+    """
+    pos, vel, yaw = motion
+    dirs, target, yield_s, yield_dir, speeds, arrived = intent
+    blocked_s, priority, anchor_xy, anchor_t = watch
+    grid, walls, reach, dyn, circles, circle_vel, has_circles = scene
+    yield_factor, steer, max_speed_factor, radius_m, sweeps, slack_m, turning, blocking, stuck = rules
+    # forces, the Euler step and the projection
+    drive, ped, seg, offsets, forced, args, ell = crowd_prepare(pos, vel, dirs, target, yield_s, yield_dir, speeds,
+                                                                arrived, yield_factor, grid, walls, dyn, circles,
+                                                                circle_vel, p)
+    new_pos, new_vel = crowd_walk(pos, vel, dirs, drive, speeds, walls, (ped, seg), offsets, forced, circles,
+                                  circle_vel, has_circles, p, steer, np.exp(args), ell, dt_s, max_speed_factor,
+                                  radius_m, sweeps, slack_m, reach)
+    # headings of the new velocities, then yaws, face-offs and stuck pedestrians
+    heading = np.empty(new_vel.shape[0])
+    for i in range(new_vel.shape[0]):
+        heading[i] = math.atan2(new_vel[i, 1], new_vel[i, 0])
+    new_yaw, rate, events = crowd_react(new_pos, new_vel, heading, yaw, dirs, arrived, yield_s, blocked_s, priority,
+                                        circles, radius_m, anchor_xy, anchor_t, time_s, dt_s, turning, blocking,
+                                        stuck)
+    return new_pos, new_vel, new_yaw, rate, events
 
 
 @njit(cache=True)
