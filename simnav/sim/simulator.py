@@ -292,6 +292,9 @@ class Simulator:
                 for s in encoders:
                     s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
             history.append((k, *base_qpos.tolist()))
+            # the motor ramping on its own meanwhile: its stretches with fewer checks
+            if skipping and not encoders:
+                k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step, clear_until))
             if data.ncon:
                 self._check_contacts()
             else:
@@ -303,6 +306,27 @@ class Simulator:
             if k >= self._delivery_step:
                 delivered += self._deliver()
         return delivered
+
+    def _ramp_stretches(self, k: int, limit: int) -> int:
+        """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
+        period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
+        possible contact, which the caller bounds) and no later than a command applies or a reading is due. Only
+        for a robot without wheel encoders and with collision detection off. Returns the step reached."""
+        motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
+        if len(commands) > 1:
+            limit = min(limit, commands[1][0], commands[1][1])
+        limit = min(limit, self._next_due_step, self._delivery_step)
+        _, _, v_target, w_target = commands[0]
+        (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
+        ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
+        while k % motor == 0 and k + motor <= limit and (v_target != v or w_target != w):
+            v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
+            ctrl[0], ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
+            step(model, data, motor)
+            k += motor
+            append((k, *base_qpos.tolist()))
+        self._v_m_s, self._w_rad_s, self._step_count = v, w, k
+        return k
 
     def _posed_until(self, k: int, end: int) -> int:
         """The step after step ``k`` at which the agents may be posed next (their period, the earliest capture's
@@ -319,10 +343,8 @@ class Simulator:
         v, w = self._v_m_s, self._w_rad_s
         if k % self._motor_substeps == 0 or (v_target == v and w_target == w):
             dv_max, dw_max = self._ramp_limits
-            dv, dw = v_target - v, w_target - w
-            # the change clipped to the limits (min(max(dv, -dv_max), dv_max) without the builtin calls)
-            self._v_m_s = v = v + (dv_max if dv > dv_max else -dv_max if dv < -dv_max else dv)
-            self._w_rad_s = w = w + (dw_max if dw > dw_max else -dw_max if dw < -dw_max else dw)
+            self._v_m_s = v = _ramped(v, v_target, dv_max)
+            self._w_rad_s = w = _ramped(w, w_target, dw_max)
         ctrl = self._ctrl
         ctrl[0], ctrl[1], ctrl[2] = v, 0.0, w
 
@@ -557,6 +579,13 @@ def _clamp(x: float, limit: float) -> float:
     if isinstance(x, float):
         return float(min(max(x, -limit), limit))
     return float(np.clip(x, -limit, limit))
+
+
+def _ramped(x: float, target: float, limit: float) -> float:
+    """``x`` moved towards ``target`` by at most ``limit`` (the change ``min(max(target - x, -limit), limit)``
+    without the builtin calls)."""
+    d = target - x
+    return x + (limit if d > limit else -limit if d < -limit else d)
 
 
 @njit(cache=True)
