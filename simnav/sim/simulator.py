@@ -8,6 +8,7 @@ acquisition time and becomes available ``latency_s`` later.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import logging
 import math
@@ -80,7 +81,8 @@ class Simulator:
         self.sensors = self._make_sensors()
         self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
         self._sees_scene = [not isinstance(s, WheelEncoders) for s in self.sensors]
-        self._capture_rank = [0 if isinstance(s, RGBDCamera) else 1 for s in self.sensors]  # cameras first
+        self._is_camera = [isinstance(s, RGBDCamera) for s in self.sensors]
+        self._capture_rank = [0 if camera else 1 for camera in self._is_camera]  # cameras first
         self.reset(seed)
 
     # ------------------------------------------------------------------------------------------------ set-up
@@ -173,7 +175,7 @@ class Simulator:
     @property
     def time_s(self) -> float:
         """Simulation time, s (whole physics steps times the step, free of accumulated rounding)."""
-        return round(self._step_count * self._dt_s, 9)
+        return _step_time(self._step_count, self._dt_s)
 
     def step(self, v_m_s: float, w_rad_s: float, *, measured: bool = False) -> list[Reading]:
         """Command (v, w) and advance one control period.
@@ -218,9 +220,9 @@ class Simulator:
         dt = self._dt_s
         pause = math.ceil(t_s / dt - 1e-6)
         k = max(pause, 0)
-        while k > 0 and t_s <= round((k - 1) * dt, 9) + _EPS_S:
+        while k > 0 and t_s <= _step_time(k - 1, dt) + _EPS_S:
             k -= 1
-        while t_s > round(k * dt, 9) + _EPS_S:
+        while t_s > _step_time(k, dt) + _EPS_S:
             k += 1
         return pause, k
 
@@ -385,8 +387,7 @@ class Simulator:
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        _pose_agents(self._mocap_pos, self._mocap_quat, *self._movers, *self._turners,
-                     max(self._agent_time_s - t_s, 0.0))
+        _pose_agents(self._mocap_pos, self._mocap_quat, self._movers, self._turners, max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -397,7 +398,8 @@ class Simulator:
         if any(map(self._sees_scene.__getitem__, due)):
             self._pose_agents_at(t)
             mujoco.mj_kinematics(self.model, self.data)
-            mujoco.mj_camlight(self.model, self.data)
+            if any(map(self._is_camera.__getitem__, due)):
+                mujoco.mj_camlight(self.model, self.data)
         # cameras first: their frames render in the background while the other sensors capture here (each sensor
         # has its own noise stream and nothing here changes the state, so the order does not change a reading)
         twists = None
@@ -524,7 +526,7 @@ class Simulator:
     def T_world_base_at(self, stamp_s: float) -> np.ndarray:
         """(4, 4) ground-truth base pose at a past time ``stamp_s`` (within the last few seconds), s."""
         k = len(self._history) - 1
-        while k > 0 and round(self._history[k][0] * self._dt_s, 9) > stamp_s + _EPS_S:
+        while k > 0 and _step_time(self._history[k][0], self._dt_s) > stamp_s + _EPS_S:
             k -= 1
         _, x, y, yaw = self._history[k]
         yaw = math.atan2(math.sin(yaw), math.cos(yaw))
@@ -568,6 +570,13 @@ class Simulator:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@functools.lru_cache(maxsize=256)
+def _step_time(k: int, dt_s: float) -> float:
+    """Time of physics step ``k`` of ``dt_s`` seconds, s: ``k·dt`` rounded to the nanosecond (free of accumulated
+    rounding). Cached: the stepping asks for the same few steps many times, and ``round`` is slow."""
+    return round(k * dt_s, 9)
 
 
 def _circumradius(robot: RobotSpec) -> float:
@@ -614,12 +623,16 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
 
 
 @njit(cache=True)
-def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, people: np.ndarray, people_xy: np.ndarray,
-                 people_vel: np.ndarray, people_yaw: np.ndarray, people_rate: np.ndarray, robots: np.ndarray,
-                 robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray, robots_rate: np.ndarray,
-                 doors: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray, back_s: float) -> None:
-    """Pose the mocap bodies ``people``, ``robots`` (:func:`_pose_movers`) and ``doors`` (:func:`_pose_turners`)
-    ``back_s`` before their states (positions, velocities, yaws, yaw rates)."""
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, turners: tuple, back_s: float) -> None:
+    """Pose the mocap bodies of the people and other robots (:func:`_pose_movers`) and of the doors
+    (:func:`_pose_turners`) ``back_s`` before their states.
+
+    ``movers`` = (people's mocap rows, positions, velocities, yaws, yaw rates, then the same of the other robots);
+    ``turners`` = (doors' mocap rows, yaws, yaw rates).
+    """
+    people, people_xy, people_vel, people_yaw, people_rate, robots, robots_xy, robots_vel, robots_yaw, robots_rate = \
+        movers
+    doors, doors_yaw, doors_rate = turners
     _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
     _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
     _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
