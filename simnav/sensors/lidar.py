@@ -9,8 +9,6 @@ culls geoms by bounding volume; the max range is applied here explicitly.
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import numpy as np
 from numba import njit
@@ -22,6 +20,8 @@ from simnav.sensors.presets import resolve_lidar2d, resolve_lidar3d
 from simnav.sensors.readings import LaserScan, PointCloud
 from simnav.world.mjcf import GROUP_COLLISION, GROUP_MOVING
 
+MAX_FIXED_HEIGHTS = 16  # scan heights whose fixed sections a caster keeps
+_MISSING = object()
 RAY_GROUPS = np.zeros(6, dtype=np.uint8)
 RAY_GROUPS[[GROUP_COLLISION, GROUP_MOVING]] = 1
 
@@ -57,13 +57,13 @@ class RayCaster:
         self._dirs_world, self._rotation_t = np.empty_like(self._dirs), np.empty((3, 3))
         self._geoms = (model.geom_type, model.geom_size, model.geom_rbound)  # views of the model's arrays
         self._fixed_ids, self._moving_ids = _split_fixed(model, self._seen)
-        self._data, self._poses, self._fixed = None, (), (math.nan, None)
+        self._data, self._poses, self._fixed = None, (), {}
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """(N,) distances to the first hit along each ray, metres; 0 where nothing is hit within max range."""
         if data is not self._data:  # views of the data's site and geom poses, kept while the data is the same
             self._data, self._poses = data, (data.site_xpos, data.site_xmat, data.geom_xpos, data.geom_xmat)
-            self._fixed = (math.nan, None)
+            self._fixed = {}
         site_xpos, site_xmat, geom_xpos, geom_xmat = self._poses
         origin, mat = site_xpos[self._site].copy(), site_xmat[self._site]
         # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
@@ -79,12 +79,15 @@ class RayCaster:
         return _in_range(self._dist, self._geomid, self._max_range)
 
     def _fixed_sections(self, oz: float, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray | None:
-        """The sections of the geoms that never move at the scan height ``oz`` (m), made once per height; None
-        when one leaves the planar model."""
-        if self._fixed[0] != oz:
-            rows = fixed_sections(oz, self._fixed_ids, *self._geoms, geom_xpos, geom_xmat)
-            self._fixed = (oz, rows)
-        return self._fixed[1]
+        """The sections of the geoms that never move at the scan height ``oz`` (m), made once per height (a
+        sensor's height takes a few values an ulp apart as the robot turns); None when one leaves the planar
+        model."""
+        rows = self._fixed.get(oz, _MISSING)
+        if rows is _MISSING:
+            if len(self._fixed) >= MAX_FIXED_HEIGHTS:
+                self._fixed.clear()
+            rows = self._fixed[oz] = fixed_sections(oz, self._fixed_ids, *self._geoms, geom_xpos, geom_xmat)
+        return rows
 
 
 def _split_fixed(model: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
