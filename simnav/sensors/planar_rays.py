@@ -31,7 +31,7 @@ CULL_SPARE_M = 1e-9  # taken off a section's distance before rays with closer hi
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, geom_ids: np.ndarray,
                 geom_type: np.ndarray, geom_size: np.ndarray, geom_rbound: np.ndarray, geom_xpos: np.ndarray,
                 geom_xmat: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> bool:
@@ -65,7 +65,7 @@ def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, g
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def fixed_sections(oz: float, geom_ids: np.ndarray, geom_type: np.ndarray, geom_size: np.ndarray,
                    geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray:
     """The sections, at height ``oz`` (m), of geoms that never move (no lying capsules among them: their sections
@@ -77,7 +77,7 @@ def fixed_sections(oz: float, geom_ids: np.ndarray, geom_type: np.ndarray, geom_
     return sections[:count].copy() if count >= 0 else None
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cast_planar_scan(origin: np.ndarray, mat: np.ndarray, dirs: np.ndarray, sensor_azimuth_rad: np.ndarray,
                      fixed: np.ndarray, geom_ids: np.ndarray, geom_type: np.ndarray, geom_size: np.ndarray,
                      geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray, max_dist_m: float,
@@ -120,7 +120,7 @@ def cast_planar_scan(origin: np.ndarray, mat: np.ndarray, dirs: np.ndarray, sens
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _horizontal(dirs: np.ndarray, dist_out: np.ndarray, geom_out: np.ndarray) -> bool:
     """Whether every ray of ``dirs`` (N, 3) is horizontal; the outputs (N,) start with no hit (-1)."""
     for i in range(dirs.shape[0]):
@@ -131,7 +131,7 @@ def _horizontal(dirs: np.ndarray, dist_out: np.ndarray, geom_out: np.ndarray) ->
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _collect_sections(ox: float, oy: float, oz: float, geom_ids: np.ndarray, geom_type: np.ndarray,
                       geom_size: np.ndarray, geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray,
                       sections: np.ndarray, count: int) -> int:
@@ -171,7 +171,7 @@ def _collect_sections(ox: float, oy: float, oz: float, geom_ids: np.ndarray, geo
     return count
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _put(sections: np.ndarray, count: int, row: tuple) -> int:
     """Writes ``row`` (SECTION_FIELDS numbers) as section ``count``; returns the new count."""
     for k in range(SECTION_FIELDS):
@@ -179,7 +179,7 @@ def _put(sections: np.ndarray, count: int, row: tuple) -> int:
     return count + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: np.ndarray, size: np.ndarray,
                     dz: float, g: int, sections: np.ndarray, count: int) -> int:
     """Sections of a cylinder or capsule whose axis is horizontal: a rectangle, plus end circles for the
@@ -207,7 +207,7 @@ def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: 
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _vertical_axis(m6: float, m7: float, m8: float) -> int:
     """Index of the geom axis along world z, from the last row ``m6, m7, m8`` of its row-major rotation, or -1 if
     none is."""
@@ -217,7 +217,7 @@ def _vertical_axis(m6: float, m7: float, m8: float) -> int:
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _section_radius(geom_type: int, size0: float, size1: float, dz: float) -> float:
     """Radius of an upright round geom's section ``dz`` from its centre, from its first two sizes (0: the plane
     misses it; -1: unknown type)."""
@@ -233,7 +233,7 @@ def _section_radius(geom_type: int, size0: float, size1: float, dz: float) -> fl
     return -1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bin_rays(azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rays sorted by azimuth bin: ``order[start[b]:start[b + 1]]`` are the rays of bin ``b``."""
     n = azimuth_rad.shape[0]
@@ -253,14 +253,14 @@ def _bin_rays(azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return start, order
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _azimuth_bin(azimuth_rad: float) -> int:
     """Bin of an azimuth, any real angle (wrapped)."""
     b = int(math.floor((azimuth_rad + math.pi) * (AZIMUTH_BINS / _TWO_PI))) % AZIMUTH_BINS
     return b + AZIMUTH_BINS if b < 0 else b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_azimuths(sensor_azimuth_rad: np.ndarray, mat: np.ndarray, out: np.ndarray) -> None:
     """Azimuths in the world of rays in a sensor's xy plane, for a sensor whose xy plane is horizontal.
 
@@ -275,7 +275,7 @@ def world_azimuths(sensor_azimuth_rad: np.ndarray, mat: np.ndarray, out: np.ndar
         out[i] = heading + mirror * sensor_azimuth_rad[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bin_span(center_rad: float, half_width_rad: float) -> tuple[int, int]:
     """First and last bin (the last may exceed the bin count: wrap it) covering an azimuth interval, padded."""
     if half_width_rad >= math.pi:
@@ -287,7 +287,7 @@ def _bin_span(center_rad: float, half_width_rad: float) -> tuple[int, int]:
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs: np.ndarray, start: np.ndarray,
                    order: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> None:
     """The rays from ``(ox, oy)`` against the first ``count`` sections (rows ``kind, geom, cx, cy, ...``): a ray
@@ -348,7 +348,7 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                         dist_out[i], geom_out[i] = t, g
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float,
                      hv: float) -> float:
     """Largest angle between the direction to the centre and the direction to a corner, seen from outside (each
@@ -363,7 +363,7 @@ def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: 
     return half + ANGLE_SPARE_RAD
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _slab_hit(pu: float, pv: float, du: float, dv: float, hu: float, hv: float) -> float:
     """First non-negative t where p + t d meets the boundary of [-hu, hu] x [-hv, hv], or -1."""
     t_near, t_far = -np.inf, np.inf
