@@ -196,13 +196,13 @@ class Wanderers:
         return not spots or float(np.min(np.linalg.norm(np.array(spots) - xy, axis=1))) >= too_close
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wrap(angle_rad: float) -> float:
     """``angle_rad`` wrapped to [-π, π) as :func:`simnav.agents.crowd.wrap_angle` does."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _offsets(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray,
              obstacles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, 2) offsets from the N robots to their next nodes, and (N, P, 2) to the points that may block them: the
@@ -217,7 +217,7 @@ def _offsets(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray,
     return to_next, rel
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_nodes: np.ndarray, blocked_s: np.ndarray,
              nodes_xy: np.ndarray, obstacles: np.ndarray, speed_m_s: float, dt_s: float, gain_1_s: float,
              reached: np.ndarray) -> tuple:
@@ -251,7 +251,7 @@ def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_node
     return new_yaw, rate, vel, new_pos, count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _drive(pos: np.ndarray, yaw: np.ndarray, to_next: np.ndarray, heading: np.ndarray, rel: np.ndarray,
            bearing: np.ndarray, speed_m_s: float, dt_s: float,
            gain_1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

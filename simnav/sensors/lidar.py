@@ -100,7 +100,7 @@ def _split_fixed(model: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, 
     return geoms[:first_other].copy(), geoms[first_other:].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _in_range(dist: np.ndarray, geomid: np.ndarray, max_range_m: float) -> np.ndarray:
     """(N,) the ray distances ``dist`` (m) of the rays that hit a geom (``geomid`` >= 0) within [0, max range],
     else 0."""

@@ -597,7 +597,7 @@ def _ramped(x: float, target: float, limit: float) -> float:
     return x + (limit if d > limit else -limit if d < -limit else d)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _robot_rows(circles: np.ndarray, velocities: np.ndarray, base_q: np.ndarray, base_v: np.ndarray, radius_m: float,
                 others_xy: np.ndarray, others_vel: np.ndarray, others_radius_m: float) -> None:
     """Fill the (1 + N, 3) ``circles`` ``[x, y, radius]`` (m) of the robot (base ``base_q`` x, y) and of N other
@@ -609,7 +609,7 @@ def _robot_rows(circles: np.ndarray, velocities: np.ndarray, base_q: np.ndarray,
         velocities[1 + k, 0], velocities[1 + k, 1] = others_vel[k, 0], others_vel[k, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray, radius_m: float,
                  robots: int) -> None:
     """Fill ``nearby`` (P + R, 2) with the (P, 2) ``people_xy`` then the robot (``blockers[0]``), and the rows of
@@ -622,7 +622,7 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
     nearby[people, 0], nearby[people, 1] = blockers[0, 0], blockers[0, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, turners: tuple, back_s: float) -> None:
     """Pose the mocap bodies of the people and other robots (:func:`_pose_movers`) and of the doors
     (:func:`_pose_turners`) ``back_s`` before their states.
@@ -638,7 +638,7 @@ def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, t
     _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, xy: np.ndarray, vel: np.ndarray,
                  yaw: np.ndarray, yaw_rate: np.ndarray, back_s: float) -> None:
     """Put mocap body ``rows[k]`` on the floor at ``xy[k] - vel[k]·back_s`` (m), turned to ``yaw[k] -
@@ -651,7 +651,7 @@ def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray
         _set_yaw(mocap_quat, m, yaw[k] - yaw_rate[k] * back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray,
                   back_s: float) -> None:
     """Turn mocap body ``rows[k]`` to ``yaw[k] - yaw_rate[k]·back_s`` (rad) for the (N,) yaws and yaw rates."""
@@ -659,7 +659,7 @@ def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw
         _set_yaw(mocap_quat, rows[k], yaw[k] - yaw_rate[k] * back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _set_yaw(mocap_quat: np.ndarray, m: int, yaw: float) -> None:
     """Mocap quaternion ``m`` (w, x, y, z): a turn by ``yaw`` (rad) about the world z axis."""
     half = yaw / 2
