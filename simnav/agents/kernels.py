@@ -806,14 +806,14 @@ def crowd_prepare(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, target: np
 
     Returns:
         (N,) drive speeds (m/s), (P,) pedestrian and (P,) segment indices of the candidate pairs, (P, 3) their
-        offsets (:func:`wall_offsets`), (F,) indices of the pairs that can push, the exponent arguments and the
-        ellipses.
+        offsets (:func:`wall_offsets`; the lengths as ``sqrt(dx² + dy²)``, within an ulp of numpy's ``hypot``
+        and cheaper), (F,) indices of the pairs that can push, the exponent arguments and the ellipses.
     """
     drive = _desired_update(dirs, target, pos, yield_s, yield_dir, speeds, arrived, yield_factor)
     start, delta, inv_len2, m = walls
     _set_segments(start, delta, inv_len2, m, dyn)
     ped, seg = _pairs(pos, grid, m, dyn.shape[0])
-    offsets = wall_offsets(pos, start, delta, inv_len2, ped, seg, wall_far_m(p))
+    offsets = wall_offsets(pos, start, delta, inv_len2, ped, seg, 0.0)  # lengths: sqrt(dx² + dy²), not hypot
     forced = _within(offsets[:, 2], wall_far_m(p))
     args, ell = exponents(pos, vel, _take_rows(offsets, forced), circles, circle_vel, p)
     return drive, ped, seg, offsets, forced, args, ell
