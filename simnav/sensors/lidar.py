@@ -66,14 +66,15 @@ class RayCaster:
             self._fixed = {}
         site_xpos, site_xmat, geom_xpos, geom_xmat = self._poses
         origin, mat = site_xpos[self._site].copy(), site_xmat[self._site]
+        fixed = self._fixed_sections(origin[2], geom_xpos, geom_xmat) if self.planar else None
+        if fixed is not None and cast_planar_scan(origin, mat, self._dirs, self._azimuth_sensor, fixed,
+                                                  self._moving_ids, *self._geoms, geom_xpos, geom_xmat,
+                                                  self._max_range, self._dirs_world, self._dist, self._geomid,
+                                                  self._ranges):
+            return self._ranges.copy()
         # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
         np.copyto(self._rotation_t, mat.reshape(3, 3).T)
         dirs_world = np.matmul(self._dirs, self._rotation_t, out=self._dirs_world)
-        fixed = self._fixed_sections(origin[2], geom_xpos, geom_xmat) if self.planar else None
-        if fixed is not None and cast_planar_scan(origin, mat, dirs_world, self._azimuth_sensor, fixed,
-                                                  self._moving_ids, *self._geoms, geom_xpos, geom_xmat,
-                                                  self._max_range, self._dist, self._geomid, self._ranges):
-            return self._ranges.copy()
         mujoco.mj_multiRay(self._model, data, origin, dirs_world.ravel(), RAY_GROUPS, 1, self._exclude,
                            self._geomid, self._dist, None, len(self._dirs), self._max_range + 1.0)
         return _in_range(self._dist, self._geomid, self._max_range)

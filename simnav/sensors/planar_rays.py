@@ -78,27 +78,31 @@ def fixed_sections(oz: float, geom_ids: np.ndarray, geom_type: np.ndarray, geom_
 
 
 @njit(cache=True, error_model="numpy")
-def cast_planar_scan(origin: np.ndarray, mat: np.ndarray, dirs: np.ndarray, sensor_azimuth_rad: np.ndarray,
+def cast_planar_scan(origin: np.ndarray, mat: np.ndarray, dirs_sensor: np.ndarray, sensor_azimuth_rad: np.ndarray,
                      fixed: np.ndarray, geom_ids: np.ndarray, geom_type: np.ndarray, geom_size: np.ndarray,
                      geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray, max_dist_m: float,
-                     dist_out: np.ndarray, geom_out: np.ndarray, ranges_out: np.ndarray) -> bool:
-    """:func:`cast_planar` for a sensor whose xy plane is horizontal, with the sections of the geoms that never
-    move made beforehand, and the ranges within reach written out.
+                     dirs: np.ndarray, dist_out: np.ndarray, geom_out: np.ndarray, ranges_out: np.ndarray) -> bool:
+    """:func:`cast_planar` for a sensor whose xy plane is horizontal, with the rays turned into the world here,
+    the sections of the geoms that never move made beforehand, and the ranges within reach written out.
 
     Args:
         origin: (3,) sensor position, world frame, m. mat: (9,) its orientation, row-major (world from sensor).
-        dirs: (N, 3) unit ray directions, world frame. sensor_azimuth_rad: (N,) their azimuths in the sensor
-            frame, rad.
+        dirs_sensor: (N, 3) unit ray directions, sensor frame. sensor_azimuth_rad: (N,) their azimuths, rad.
         fixed: (S, SECTION_FIELDS) sections of the geoms that never move (:func:`fixed_sections` at the
             origin's height), all with lower geom ids than ``geom_ids``.
         geom_ids: (K,) the other geoms to test. geom_type ... geom_xmat, max_dist_m, dist_out, geom_out: as
             :func:`cast_planar`.
+        dirs: (N, 3) written: the ray directions, world frame.
         ranges_out: (N,) written: the hit distances within [0, max_dist_m], else 0, m.
 
     Returns:
         False when the rays or a geom leave the planar model (outputs then undefined), else True.
     """
-    n = dirs.shape[0]
+    n = dirs_sensor.shape[0]
+    for i in range(n):
+        for r in range(3):
+            dirs[i, r] = dirs_sensor[i, 0] * mat[3 * r] + dirs_sensor[i, 1] * mat[3 * r + 1] + \
+                dirs_sensor[i, 2] * mat[3 * r + 2]
     if not _horizontal(dirs, dist_out, geom_out):
         return False
     # 1. The fixed sections, then those of the other geoms, in geom order.
