@@ -19,15 +19,7 @@ import math
 
 import numpy as np
 
-from simnav.agents.kernels import (
-    crowd_advance,
-    crowd_plan_events,
-    crowd_prepare,
-    crowd_react,
-    crowd_walk,
-    grid_lists,
-    grid_pairs,
-)
+from simnav.agents.kernels import crowd_advance, crowd_move, crowd_plan_events, grid_lists, grid_pairs
 from simnav.agents.roadmap import RoadmapGraph
 from simnav.agents.social_force import (
     NEAR_SLACK_M,
@@ -171,7 +163,8 @@ class Crowd:
         self._wall_xy = np.asarray(walls_xy, dtype=float).reshape(-1, 2, 2)
         self._walls = Segments(self._wall_xy)
         self._kernel_params = kernel_params(params)
-        self._steer = params.wall_look_ahead_m > 0.0
+        self._rules = (YIELD_SPEED_FACTOR, params.wall_look_ahead_m > 0.0, params.max_speed_factor, params.radius_m,
+                       PROJECTION_SWEEPS, NEAR_SLACK_M, _TURNING, _BLOCKING, _STUCK)
         self._limits = (GOAL_REACHED_M, WAYPOINT_REACHED_M, params.radius_m, OCCUPIED_MARGIN_M)
         self._init_grids()
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
@@ -268,20 +261,13 @@ class Crowd:
             circ = circ + np.array([0.0, 0.0, self._params.circle_clearance_m])
         self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
-        self._move(dt_s, dyn, circ, circ_vel, circles is not None)
-        # headings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
-        heading = np.arctan2(self._vel[:, 1], self._vel[:, 0])
-        self._yaw, self._yaw_rate, events = crowd_react(
-            self._pos, self._vel, heading, self._yaw, self._dirs, self._arrived, self._yield_s, self._blocked_s,
-            self._priority, circ, self.radius_m, self._anchor_xy, self._anchor_t, self._time_s, dt_s, _TURNING,
-            _BLOCKING, _STUCK,
-        )
+        events = self._move(dt_s, dyn, circ, circ_vel, circles is not None)
         if len(events):
             self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
 
     def _unblock(self, events: np.ndarray, circles: np.ndarray, walls: Segments) -> None:
         """Those blocked step back, those stuck head elsewhere: (E, 2) events [pedestrian, blocker, or −1 for
-        stuck] of :func:`~simnav.agents.kernels.crowd_react`, with the (C, 3) ``circles`` and this step's
+        stuck] of :func:`~simnav.agents.kernels.crowd_move`, with the (C, 3) ``circles`` and this step's
         ``walls``."""
         for k, blocker in events:
             if blocker >= 0:
@@ -291,7 +277,7 @@ class Crowd:
 
     def _moving_segments(self, dynamic_segments: np.ndarray | None) -> np.ndarray:
         """The (D, 2, 2) moving segments (metres), contiguous, with room for them after the walls (kept while D
-        stays; :func:`~simnav.agents.kernels.crowd_prepare` fills it)."""
+        stays; :func:`~simnav.agents.kernels.crowd_move` fills it)."""
         if dynamic_segments is None:
             return self._no_segments
         dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
@@ -300,21 +286,23 @@ class Crowd:
             self._extended_args = (*self._extended.arrays, len(self._walls))
         return dyn
 
-    def _move(self, dt_s: float, dyn: np.ndarray, circ: np.ndarray, circ_vel: np.ndarray, has_circles: bool) -> None:
-        """Social forces, the semi-implicit Euler step and the non-overlap projection: new positions and velocities.
+    def _move(self, dt_s: float, dyn: np.ndarray, circ: np.ndarray, circ_vel: np.ndarray,
+              has_circles: bool) -> np.ndarray:
+        """Social forces, the semi-implicit Euler step, the non-overlap projection, then yaws, face-offs and stuck
+        pedestrians, in one kernel call: new positions, velocities, yaws and yaw rates; returns the (E, 2) events
+        [pedestrian, blocker, or −1 for stuck] left to :meth:`_unblock`.
 
         ``dyn``: (D, 2, 2) moving segments; ``has_circles`` False: ``circ`` is (0, 3).
         """
         walls = self._walls_args if len(dyn) == 0 else self._extended_args
-        drive, ped, seg, offsets, forced, args, ell = crowd_prepare(
-            self._pos, self._vel, self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds,
-            self._arrived, YIELD_SPEED_FACTOR, self._near_cells, walls, dyn, circ, circ_vel, self._kernel_params,
+        self._pos, self._vel, self._yaw, self._yaw_rate, events = crowd_move(
+            (self._pos, self._vel, self._yaw),
+            (self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds, self._arrived),
+            (self._blocked_s, self._priority, self._anchor_xy, self._anchor_t),
+            (self._near_cells, walls, self._fallback, dyn, circ, circ_vel, has_circles),
+            self._kernel_params, self._rules, self._time_s, dt_s,
         )
-        self._pos, self._vel = crowd_walk(
-            self._pos, self._vel, self._dirs, drive, self._speeds, walls, (ped, seg), offsets, forced, circ, circ_vel,
-            has_circles, self._kernel_params, self._steer, np.exp(args), ell, dt_s, self._params.max_speed_factor,
-            self.radius_m, PROJECTION_SWEEPS, NEAR_SLACK_M, self._fallback,
-        )
+        return events
 
     def _init_grids(self) -> None:
         """The candidate walls: a near grid for the forces and the projection after moves up to

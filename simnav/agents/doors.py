@@ -255,7 +255,7 @@ def _stage_at(durations: tuple[float, float, float, float], cycle_s: float) -> t
     return DoorStage.OPEN, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_leaves(params: np.ndarray, state: np.ndarray, t_s: float, dt_s: float, nearby: np.ndarray,
                    blockers: np.ndarray, verdicts: np.ndarray, proposals: np.ndarray) -> int:
     """Advance each leaf of the (D, _N_PARAMS) ``params`` and (D, _N_STATE) ``state`` by ``dt_s`` to ``t_s``.
@@ -294,7 +294,7 @@ def _update_leaves(params: np.ndarray, state: np.ndarray, t_s: float, dt_s: floa
     return unsure
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hold_open(p: np.ndarray, stage: int, elapsed: float, opening: float) -> tuple[int, float]:
     """Someone is near: an open leaf restarts its open time, a closing or closed one swings open from where it is."""
     if stage == _ST_OPEN:
@@ -306,7 +306,7 @@ def _hold_open(p: np.ndarray, stage: int, elapsed: float, opening: float) -> tup
     return stage, elapsed
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _advance(p: np.ndarray, stage: int, elapsed: float, near: bool) -> tuple[int, float]:
     """The stage and its elapsed time (s) once the stages ``elapsed`` has outlasted are over."""
     while elapsed >= p[_DURATIONS + stage]:
@@ -317,7 +317,7 @@ def _advance(p: np.ndarray, stage: int, elapsed: float, near: bool) -> tuple[int
     return stage, elapsed
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _opening(p: np.ndarray, stage: int, elapsed: float) -> float:
     """Opening of the leaf ``elapsed`` seconds into ``stage`` (the cosine ramp while it swings)."""
     ramp = 0.5 * (1.0 - math.cos(math.pi * min(elapsed / p[_MOVE], 1.0)))
@@ -328,7 +328,7 @@ def _opening(p: np.ndarray, stage: int, elapsed: float) -> float:
     return 1.0 if stage == _ST_OPEN else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sweep_verdict(p: np.ndarray, opening_before: float, opening_after: float, blockers: np.ndarray) -> int:
     """_BLOCKED when the swing brings the leaf within the safety clearance of a (B, 3) blocker and closer to it than
     before, else _FREE; _UNSURE when a comparison lies within the rounding difference of the reference formula
@@ -344,7 +344,7 @@ def _sweep_verdict(p: np.ndarray, opening_before: float, opening_after: float, b
     return _UNSURE if unsure else _FREE
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _clearance(p: np.ndarray, opening: float, circle: np.ndarray) -> float:
     """Gap between the leaf at ``opening`` (its thickness included) and a circle ``[x, y, radius]``, metres."""
     yaw = p[_CLOSED] + opening * p[_SWING]
@@ -355,7 +355,7 @@ def _clearance(p: np.ndarray, opening: float, circle: np.ndarray) -> float:
     return math.sqrt(dx * dx + dy * dy) - circle[2] - 0.5 * p[_THICK]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _segments(params: np.ndarray, state: np.ndarray, out: np.ndarray) -> None:
     """Write the (D, 2, 2) segments ``[hinge, tip]`` (metres) of the leaves into ``out``."""
     for k in range(params.shape[0]):
@@ -364,7 +364,7 @@ def _segments(params: np.ndarray, state: np.ndarray, out: np.ndarray) -> None:
         out[k, 1, 0], out[k, 1, 1] = p[_HX] + p[_WIDTH] * math.cos(yaw), p[_HY] + p[_WIDTH] * math.sin(yaw)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _any_within(points: np.ndarray, cx: float, cy: float, radius_m: float) -> bool:
     """Whether a point of (P, 2) ``points`` lies within ``radius_m`` of (cx, cy) (all metres)."""
     for k in range(points.shape[0]):

@@ -4,21 +4,23 @@ Written with numpy, one crowd step of 10 people made a few hundred small array o
 index sums), ~1 ms of per-call overhead for a few microseconds of arithmetic. These kernels loop over the same
 data and do the same floating-point operations in the same order as the array formulation in
 :mod:`simnav.agents.social_force` (kept there as the reference and tested against it), so forces and positions
-are identical to the bit. The one operation done outside is ``exp``: numpy's vectorised ``exp`` and libm's (which
-compiled code calls) differ in the last bit for a few per cent of arguments, and the crowd's dynamics carry such
-differences up to metres within a minute, so :func:`exponents` lists the arguments and the caller takes
-``np.exp`` of them. Where only a comparison needs a ``hypot``, a cheaper ``sqrt(dx² + dy²)`` decides unless it
-lies within rounding of the threshold.
+are identical to the bit. The one operation the entry points of the reference leave out is ``exp``: numpy's
+vectorised ``exp`` and libm's (which compiled code calls) differ in the last bit for a few per cent of arguments,
+so :func:`exponents` lists the arguments and :func:`simnav.agents.social_force.social_force_pairs` takes
+``np.exp`` of them. The crowd's own step takes them, and the headings of the velocities, with libm inside one
+call: one step lies within rounding of the reference (the dynamics carry such differences up to metres within a
+minute; the same seed still gives the same crowd). Where only a comparison needs a ``hypot``, a cheaper
+``sqrt(dx² + dy²)`` decides unless it lies within rounding of the threshold.
 
 * :func:`exponents`, then :func:`social_force_kernel`: driving term, pedestrian and round-obstacle repulsion, wall
   repulsion with the merging of nearby wall points and the look-ahead steering.
 * :func:`integrate_kernel`: the semi-implicit Euler step with the speed cap.
 * :func:`resolve_overlaps_kernel`: undo wall crossings, push out of walls, separate pedestrians, push out of
   circles, in the sweeps of :func:`simnav.agents.social_force.resolve_overlaps_pairs`.
-* The step of :class:`simnav.agents.crowd.Crowd` in four calls, around what numpy or the random generator does:
-  :func:`crowd_plan_events` (pauses, waypoints; new goals and pauses are drawn in Python), :func:`crowd_prepare`
-  (desired directions, candidate walls, the ``exp`` arguments), :func:`crowd_walk` (forces, Euler step,
-  projection) and, after numpy's ``arctan2`` of the velocities, :func:`crowd_react` (yaws, face-offs, stuck
+* The step of :class:`simnav.agents.crowd.Crowd` in two calls, around what the random generator does:
+  :func:`crowd_plan_events` (pauses, waypoints; new goals and pauses are drawn in Python), then
+  :func:`crowd_move`: :func:`crowd_prepare` (desired directions, candidate walls, the ``exp`` arguments),
+  :func:`crowd_walk` (forces, Euler step, projection) and :func:`crowd_react` (yaws, face-offs, stuck
   pedestrians). They live here with the functions they call: a cached kernel is not recompiled when a function it
   calls in another file changes.
 
@@ -38,7 +40,7 @@ CONTACT_MARGIN_M = 1e-3  # clearance beyond touching, metres (social_force.CONTA
 PUSH_SLACK_M = 0.25  # while nobody has moved farther in a projection, only walls this close to contact can push
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ellipse(rx: float, ry: float, sx: float, sy: float, ell: np.ndarray, k: int) -> None:
     """(b, |r|, |r − s|, |r| + |r − s|) of the elliptical potential, for the offset r and the partner's step s,
     into column k of ``ell`` (4, K)."""
@@ -50,7 +52,7 @@ def _ellipse(rx: float, ry: float, sx: float, sy: float, ell: np.ndarray, k: int
     ell[0, k], ell[1, k], ell[2, k], ell[3, k] = max(0.5 * math.sqrt(max(total * total - s2, 0.0)), _EPS), n1, n2, total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _elliptical(rx: float, ry: float, sx: float, sy: float, v0: float, sigma: float, exp_b: float, ell: np.ndarray,
                 k: int) -> tuple[float, float]:
     """``−∇V(b)`` for the offset r from a partner taking the step s (metres): (fx, fy) m/s².
@@ -63,7 +65,7 @@ def _elliptical(rx: float, ry: float, sx: float, sy: float, v0: float, sigma: fl
     return scale * (rx / n1 + (rx - sx) / n2), scale * (ry / n1 + (ry - sy) / n2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _view_weight(ex: float, ey: float, fx: float, fy: float, cos_half_fov: float, out_w: float) -> float:
     """1 when the source of the repulsion f lies within the field of view about e, else ``out_w``."""
     toward = -(ex * fx + ey * fy)
@@ -71,7 +73,7 @@ def _view_weight(ex: float, ey: float, fx: float, fy: float, cos_half_fov: float
     return 1.0 if toward >= norm * cos_half_fov else out_w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _offset(px: float, py: float, start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, s: int,
             far_m: float = np.inf) -> tuple[float, float, float]:
     """Vector from the closest point of segment s to p, and its length (metres).
@@ -89,7 +91,7 @@ def _offset(px: float, py: float, start: np.ndarray, delta: np.ndarray, inv_len2
     return dx, dy, math.hypot(dx, dy)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _closer_than(px: float, py: float, ax: float, ay: float, abx: float, aby: float, limit: float) -> bool:
     """Whether the distance from p to the segment a → a + ab, ``hypot`` of the offset, is below ``limit`` (metres).
 
@@ -107,7 +109,7 @@ def _closer_than(px: float, py: float, ax: float, ay: float, abx: float, aby: fl
     return math.hypot(dx, dy) < limit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _crosses(p0x: float, p0y: float, p1x: float, p1y: float, ax: float, ay: float, abx: float,
              aby: float) -> bool:
     """Whether the straight move p0 → p1 touches or crosses the segment a → a + ab."""
@@ -121,7 +123,7 @@ def _crosses(p0x: float, p0y: float, p1x: float, p1y: float, ax: float, ay: floa
     return d1 * d2 <= 0.0 and d3 * d4 <= 0.0 and not collinear
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pedestrian_forces(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, p: np.ndarray, exps: np.ndarray,
                        ell: np.ndarray) -> np.ndarray:
     """(N, 2) weighted elliptical repulsion between pedestrians, summed over partners in index order."""
@@ -142,7 +144,7 @@ def _pedestrian_forces(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, p: np
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _circle_forces(pos: np.ndarray, dirs: np.ndarray, circles: np.ndarray, circle_vel: np.ndarray,
                    p: np.ndarray, exps: np.ndarray, ell: np.ndarray) -> np.ndarray:
     """(N, 2) weighted repulsion of round obstacles, distances from their rims, with the steering around them."""
@@ -166,7 +168,7 @@ def _circle_forces(pos: np.ndarray, dirs: np.ndarray, circles: np.ndarray, circl
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _steer(fx: float, fy: float, rx: float, ry: float, ex: float, ey: float, fraction: float) -> tuple[float, float]:
     """f with ``fraction`` of its part against e turned sideways (the side of r across e, else the right)."""
     against = min(fx * ex + fy * ey, 0.0) * fraction
@@ -180,7 +182,7 @@ def _steer(fx: float, fy: float, rx: float, ry: float, ex: float, ey: float, fra
     return fx - against * ex - against * sx, fy - against * ey - against * sy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wall_forces(pos: np.ndarray, dirs: np.ndarray, start: np.ndarray, delta: np.ndarray, ped_idx: np.ndarray,
                  seg_idx: np.ndarray, offsets: np.ndarray, p: np.ndarray, steer: bool, exps: np.ndarray) -> np.ndarray:
     """(N, 2) wall repulsion from the nearest point of each obstacle, steering only where the way is clear."""
@@ -226,7 +228,7 @@ def _wall_forces(pos: np.ndarray, dirs: np.ndarray, start: np.ndarray, delta: np
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _near_stretch(px: float, py: float, ex: float, ey: float, look: float, start: np.ndarray, delta: np.ndarray,
                   s: int, radius: float) -> bool:
     """Whether segment s comes within ``radius`` of the stretch p → p + look·e (crossing it included), metres."""
@@ -241,7 +243,7 @@ def _near_stretch(px: float, py: float, ex: float, ey: float, look: float, start
             or _closer_than(ax + abx, ay + aby, px, py, mx, my, radius))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nearest_per_direction(ped: np.ndarray, dist: np.ndarray, nx: np.ndarray, ny: np.ndarray, near: np.ndarray,
                            n: int, cos_merge: float) -> np.ndarray:
     """(P,) True for the near points no closer near point of the same pedestrian sees within the merge angle.
@@ -267,30 +269,35 @@ def _nearest_per_direction(ped: np.ndarray, dist: np.ndarray, nx: np.ndarray, ny
     return kept
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _merge_group(group: np.ndarray, dist: np.ndarray, nx: np.ndarray, ny: np.ndarray, cos_merge: float,
                  kept: np.ndarray) -> None:
     """Mark (in ``kept``) the points of one pedestrian's group (pair indices, ascending) that no closer point of the
-    group sees within the merge angle: the closest is, those it sees are not, the others are checked against all."""
-    if group.shape[0] == 0:
-        return
-    best = group[0]
-    for k in group:
-        if dist[k] < dist[best]:
-            best = k
-    kept[best] = True
-    for k in group:
-        kx, ky, kd = nx[k], ny[k], dist[k]
-        if k == best or kx * nx[best] + ky * ny[best] > cos_merge:
-            continue
+    group sees within the merge angle.
+
+    The group is ordered by distance first (a stable insertion sort: ties keep the pair order), so the closer
+    points of each are those before it, and its check stops at the first of them that sees it.
+    """
+    g = group.shape[0]
+    order = group.copy()
+    for a in range(1, g):
+        k, d, b = order[a], dist[order[a]], a
+        while b > 0 and dist[order[b - 1]] > d:
+            order[b] = order[b - 1]
+            b -= 1
+        order[b] = k
+    for a in range(g):
+        k = order[a]
+        kx, ky = nx[k], ny[k]
         kept[k] = True
-        for j in group:
-            if kx * nx[j] + ky * ny[j] > cos_merge and (dist[j] < kd or (dist[j] == kd and j < k)):
+        for b in range(a):
+            j = order[b]
+            if kx * nx[j] + ky * ny[j] > cos_merge:
                 kept[k] = False
                 break
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def social_force_kernel(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, speeds: np.ndarray,
                         start: np.ndarray, delta: np.ndarray, ped_idx: np.ndarray, seg_idx: np.ndarray,
                         offsets: np.ndarray, circles: np.ndarray, circle_vel: np.ndarray, has_circles: bool,
@@ -322,7 +329,7 @@ def social_force_kernel(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, spee
     return acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _push_out_of_walls(pos: np.ndarray, radius: float, walls: tuple, near: tuple, ref: np.ndarray) -> np.ndarray:
     """Push centres (in place) to ``radius + margin`` from every segment closer than ``radius + margin/2``.
 
@@ -370,7 +377,7 @@ def _push_out_of_walls(pos: np.ndarray, radius: float, walls: tuple, near: tuple
     return contact
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _separate_pedestrians(pos: np.ndarray, radius: float, pinned: np.ndarray) -> bool:
     """Move overlapping pairs apart (in place) to ``2·radius + margin``; a pinned one does not move."""
     n = pos.shape[0]
@@ -392,7 +399,7 @@ def _separate_pedestrians(pos: np.ndarray, radius: float, pinned: np.ndarray) ->
     return any_hit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _separate_pair(pos: np.ndarray, i: int, j: int, radius: float, pinned: np.ndarray, delta_i: np.ndarray,
                    delta_j: np.ndarray) -> bool:
     """Add the push apart of pedestrians i and j, if in contact, to ``delta_i[i]`` and ``delta_j[j]``."""
@@ -418,7 +425,7 @@ def _separate_pair(pos: np.ndarray, i: int, j: int, radius: float, pinned: np.nd
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _push_out_of_circles(pos: np.ndarray, radius: float, circles: np.ndarray) -> bool:
     """Push centres (in place) out of the round obstacles ``[x, y, radius]`` to their rim + margin."""
     n, c = pos.shape[0], circles.shape[0]
@@ -442,7 +449,7 @@ def _push_out_of_circles(pos: np.ndarray, radius: float, circles: np.ndarray) ->
     return any_hit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _undo_crossings(pos: np.ndarray, prev: np.ndarray, walls: tuple, ped_idx: np.ndarray, seg_idx: np.ndarray,
                     guarded: np.ndarray, ref: np.ndarray, dist: np.ndarray, way: np.ndarray) -> bool:
     """Put back (in place) pedestrians whose move from ``prev`` touches or crosses a guarded segment.
@@ -469,7 +476,7 @@ def _undo_crossings(pos: np.ndarray, prev: np.ndarray, walls: tuple, ped_idx: np
     return any_back
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _near_pairs(pos: np.ndarray, walls: tuple, ped_idx: np.ndarray, seg_idx: np.ndarray, check_crossing: np.ndarray,
                 guard: bool, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pairs closer than ``reach`` (metres), in pair order: pedestrian and segment indices, distances (the
@@ -489,7 +496,7 @@ def _near_pairs(pos: np.ndarray, walls: tuple, ped_idx: np.ndarray, seg_idx: np.
     return ped[:count], seg[:count], dist[:count], guarded[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _below(d: float, limit: float, strict: bool, px: float, py: float, walls: tuple, s: int) -> bool:
     """Whether the distance from p to segment s (``hypot`` of the offset, as :func:`_offset` gives it near) is below
     ``limit`` (> 0), or at most it when not ``strict`` (metres); ``d`` is its ``sqrt`` estimate, within a few ulps:
@@ -502,7 +509,7 @@ def _below(d: float, limit: float, strict: bool, px: float, py: float, walls: tu
     return exact < limit if strict else exact <= limit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def resolve_overlaps_kernel(positions: np.ndarray, radius: float, start: np.ndarray, delta: np.ndarray,
                             inv_len2: np.ndarray, ped_idx: np.ndarray, seg_idx: np.ndarray, circles: np.ndarray,
                             iterations: int, prev: np.ndarray, has_prev: bool, check_crossing: np.ndarray,
@@ -552,13 +559,13 @@ def resolve_overlaps_kernel(positions: np.ndarray, radius: float, start: np.ndar
     return pos
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wall_far_m(p: np.ndarray) -> float:
     """Distance beyond which a wall pair neither pushes nor reaches the look-ahead stretch, metres."""
     return max(p[14], p[11] + p[8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wall_offsets(pos: np.ndarray, start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, ped_idx: np.ndarray,
                  seg_idx: np.ndarray, far_m: float) -> np.ndarray:
     """(P, 3) vectors from the closest point of segment ``seg_idx[k]`` to ``pos[ped_idx[k]]`` and their lengths
@@ -571,7 +578,7 @@ def wall_offsets(pos: np.ndarray, start: np.ndarray, delta: np.ndarray, inv_len2
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exponents(pos: np.ndarray, vel: np.ndarray, offsets: np.ndarray, circles: np.ndarray, circle_vel: np.ndarray,
               p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The arguments of every ``exp`` in :func:`social_force_kernel`, flat (N·N + N·C + P,), and the ellipses.
@@ -579,8 +586,8 @@ def exponents(pos: np.ndarray, vel: np.ndarray, offsets: np.ndarray, circles: np
     ``−b/σ`` of the pedestrian pairs (i, j) at ``i·N + j`` and of the pedestrian-circle pairs (i, k) at
     ``N·N + i·C + k``, then ``−d/R`` of the wall pairs (``offsets``, (P, 3) from :func:`wall_offsets` with
     :func:`wall_far_m`; 0 where not needed). numpy's vectorised ``exp`` and libm's differ in the last bit for a
-    few per cent of arguments, so the caller takes ``np.exp`` of these, as the numpy formulation does, and the
-    dynamics stay bit-identical to it. The ellipses, (4, N·N + N·C), are (b, |r|, |r − s|, |r| + |r − s|) of the
+    few per cent of arguments, so a caller that must match the numpy formulation to the bit takes ``np.exp`` of
+    these, as it does. The ellipses, (4, N·N + N·C), are (b, |r|, |r − s|, |r| + |r − s|) of the
     pedestrian and pedestrian-circle pairs at the same indices (:func:`_ellipse`), for the forces.
     """
     n, c, m = pos.shape[0], circles.shape[0], offsets.shape[0]
@@ -611,7 +618,7 @@ def exponents(pos: np.ndarray, vel: np.ndarray, offsets: np.ndarray, circles: np
     return out, ell
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate_kernel(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, speeds: np.ndarray, dt_s: float,
                      max_speed_factor: float) -> tuple[np.ndarray, np.ndarray]:
     """Semi-implicit Euler step with ``|v| ≤ max_speed_factor·v⁰``: new (N, 2) positions (m) and velocities (m/s).
@@ -632,7 +639,7 @@ def integrate_kernel(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, speeds: 
 
 
 # ------------------------------------------------------------------------------------------- the crowd step
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def grid_pairs(points: np.ndarray, origin: np.ndarray, cell_m: float, nx: int, ny: int, ptr: np.ndarray,
                idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`~simnav.agents.crowd.SegmentGrid.pairs` on the grid's flat cell lists ``idx[ptr[c]:ptr[c + 1]]``
@@ -659,7 +666,7 @@ def grid_pairs(points: np.ndarray, origin: np.ndarray, cell_m: float, nx: int, n
     return ped, seg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def grid_lists(origin: np.ndarray, cell_m: float, nx: int, ny: int, start: np.ndarray, delta: np.ndarray,
                inv_len2: np.ndarray, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
     """The cell lists of a grid (origin (2,), cells ``cell_m`` wide, metres): per cell c = ix·ny + iy, the prepared
@@ -673,7 +680,7 @@ def grid_lists(origin: np.ndarray, cell_m: float, nx: int, ny: int, start: np.nd
     return ptr, idx
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cell_list(origin: np.ndarray, cell_m: float, ny: int, c: int, start: np.ndarray, delta: np.ndarray,
                inv_len2: np.ndarray, reach_m: float, out: np.ndarray) -> int:
     """How many segments lie within ``reach_m`` of the centre of cell c (see :func:`grid_lists`); they are written
@@ -688,7 +695,7 @@ def _cell_list(origin: np.ndarray, cell_m: float, ny: int, c: int, start: np.nda
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, plans: tuple, circles: np.ndarray,
                       limits: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Run the pauses (N,) of those who arrived down by ``dt_s`` seconds (in place).
@@ -710,7 +717,7 @@ def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, pla
     return due[:0], crowd_advance(arrived, plans, circles, limits)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
                   limits: tuple[float, float, float, float]) -> np.ndarray:
     """Move the walking pedestrians within reach of their targets on along their paths (in place).
@@ -752,7 +759,7 @@ def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
     return events[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _reached(pos: np.ndarray, target: np.ndarray, wp: np.ndarray, last_wp: np.ndarray, arrived: np.ndarray,
              circles: np.ndarray, limits: tuple[float, float, float, float]) -> np.ndarray:
     """Indices of the walking pedestrians within reach of their targets (see :func:`crowd_advance`)."""
@@ -770,7 +777,7 @@ def _reached(pos: np.ndarray, target: np.ndarray, wp: np.ndarray, last_wp: np.nd
     return out[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _occupied_extra(targets: np.ndarray, circles: np.ndarray, radius_m: float, margin_m: float) -> np.ndarray:
     """(N,) the largest ``circle radius + radius_m`` over the circles (C, 3) whose rim comes within ``margin_m``
     of the pedestrian's rim about its target (N, 2), else 0 (all metres)."""
@@ -786,7 +793,7 @@ def _occupied_extra(targets: np.ndarray, circles: np.ndarray, radius_m: float, m
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def crowd_prepare(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, target: np.ndarray, yield_s: np.ndarray,
                   yield_dir: np.ndarray, speeds: np.ndarray, arrived: np.ndarray, yield_factor: float, grid: tuple,
                   walls: tuple, dyn: np.ndarray, circles: np.ndarray, circle_vel: np.ndarray, p: np.ndarray) -> tuple:
@@ -799,20 +806,20 @@ def crowd_prepare(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, target: np
 
     Returns:
         (N,) drive speeds (m/s), (P,) pedestrian and (P,) segment indices of the candidate pairs, (P, 3) their
-        offsets (:func:`wall_offsets`), (F,) indices of the pairs that can push, the exponent arguments and the
-        ellipses.
+        offsets (:func:`wall_offsets`; the lengths as ``sqrt(dx² + dy²)``, within an ulp of numpy's ``hypot``
+        and cheaper), (F,) indices of the pairs that can push, the exponent arguments and the ellipses.
     """
     drive = _desired_update(dirs, target, pos, yield_s, yield_dir, speeds, arrived, yield_factor)
     start, delta, inv_len2, m = walls
     _set_segments(start, delta, inv_len2, m, dyn)
     ped, seg = _pairs(pos, grid, m, dyn.shape[0])
-    offsets = wall_offsets(pos, start, delta, inv_len2, ped, seg, wall_far_m(p))
+    offsets = wall_offsets(pos, start, delta, inv_len2, ped, seg, 0.0)  # lengths: sqrt(dx² + dy²), not hypot
     forced = _within(offsets[:, 2], wall_far_m(p))
     args, ell = exponents(pos, vel, _take_rows(offsets, forced), circles, circle_vel, p)
     return drive, ped, seg, offsets, forced, args, ell
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _desired_update(dirs: np.ndarray, target: np.ndarray, pos: np.ndarray, yield_s: np.ndarray,
                     yield_dir: np.ndarray, speeds: np.ndarray, arrived: np.ndarray, yield_factor: float) -> np.ndarray:
     """Point ``dirs`` (N, 2, in place) at the targets, or along ``yield_dir`` while yielding; (N,) drive speeds.
@@ -835,7 +842,7 @@ def _desired_update(dirs: np.ndarray, target: np.ndarray, pos: np.ndarray, yield
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _set_segments(start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, m: int, dyn: np.ndarray) -> None:
     """Write the (D, 2, 2) segments ``dyn`` (metres) after the first m prepared segments, as
     :class:`~simnav.agents.social_force.Segments` prepares them."""
@@ -847,7 +854,7 @@ def _set_segments(start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, m:
         inv_len2[k] = 1.0 / max(dx * dx + dy * dy, 1e-18)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pairs(points: np.ndarray, grid: tuple, m: int, d_count: int) -> tuple[np.ndarray, np.ndarray]:
     """Candidate (point, segment) pairs, two (P,) arrays: the ``grid``'s (:func:`grid_pairs`), then every point with
     each of the ``d_count`` moving segments m, m + 1, ..."""
@@ -864,7 +871,7 @@ def _pairs(points: np.ndarray, grid: tuple, m: int, d_count: int) -> tuple[np.nd
     return all_ped, all_seg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _within(values: np.ndarray, limit: float) -> np.ndarray:
     """Indices (ascending) of the (P,) ``values`` at most ``limit``."""
     out = np.empty(values.shape[0], dtype=np.int64)
@@ -876,7 +883,7 @@ def _within(values: np.ndarray, limit: float) -> np.ndarray:
     return out[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _take(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The entries ``idx`` (K,) of ``values`` (P,)."""
     out = np.empty(idx.shape[0], dtype=values.dtype)
@@ -885,7 +892,7 @@ def _take(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _take_rows(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The rows ``idx`` (K,) of ``values`` (P, W)."""
     out = np.empty((idx.shape[0], values.shape[1]), dtype=values.dtype)
@@ -895,7 +902,7 @@ def _take_rows(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def crowd_walk(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, drive: np.ndarray, speeds: np.ndarray,
                walls: tuple, pairs: tuple, offsets: np.ndarray, forced: np.ndarray, circles: np.ndarray,
                circle_vel: np.ndarray, has_circles: bool, p: np.ndarray, steer: bool, exps: np.ndarray,
@@ -938,7 +945,53 @@ def crowd_walk(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, drive: np.nda
     return resolved, new_vel
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def crowd_move(motion: tuple, intent: tuple, watch: tuple, scene: tuple, p: np.ndarray, rules: tuple,
+               time_s: float, dt_s: float) -> tuple:
+    """The crowd step after the plans in one call: :func:`crowd_prepare`, the exponentials, :func:`crowd_walk`,
+    the headings of the new velocities and :func:`crowd_react`.
+
+    Args:
+        motion: (positions (N, 2) m, velocities (N, 2) m/s, yaws (N,) rad), replaced by the step.
+        intent: (desired directions (N, 2), targets (N, 2) m, yield times (N,) s, yield directions (N, 2), desired
+            speeds (N,) m/s, arrived (N,) bool), changed in place.
+        watch: (blocked times (N,) s, priorities (N,), progress anchors (N, 2) m and their times (N,) s), changed
+            in place.
+        scene: (the near ``grid`` of :func:`grid_pairs`, ``walls`` = (start, delta, inv_len2, number of static
+            walls M), ``reach`` of :func:`crowd_walk`, moving segments (D, 2, 2) m, circles (C, 3) m, their
+            velocities (C, 2) m/s, whether there are circles).
+        p: the force parameters (:func:`simnav.agents.social_force.kernel_params`).
+        rules: (yield speed factor, steer, speed cap factor, radius m, projection sweeps, slack m, and the
+            ``turning``, ``blocking`` and ``stuck`` rules of :func:`crowd_react`).
+        time_s: the crowd's time after the step, s. dt_s: the step, s.
+
+    Returns:
+        New positions (N, 2) m, velocities (N, 2) m/s, yaws (N,) rad, yaw rates (N,) rad/s, and the (E, 2) events
+        of :func:`crowd_react`.
+    """
+    pos, vel, yaw = motion
+    dirs, target, yield_s, yield_dir, speeds, arrived = intent
+    blocked_s, priority, anchor_xy, anchor_t = watch
+    grid, walls, reach, dyn, circles, circle_vel, has_circles = scene
+    yield_factor, steer, max_speed_factor, radius_m, sweeps, slack_m, turning, blocking, stuck = rules
+    # forces, the Euler step and the projection
+    drive, ped, seg, offsets, forced, args, ell = crowd_prepare(pos, vel, dirs, target, yield_s, yield_dir, speeds,
+                                                                arrived, yield_factor, grid, walls, dyn, circles,
+                                                                circle_vel, p)
+    new_pos, new_vel = crowd_walk(pos, vel, dirs, drive, speeds, walls, (ped, seg), offsets, forced, circles,
+                                  circle_vel, has_circles, p, steer, np.exp(args), ell, dt_s, max_speed_factor,
+                                  radius_m, sweeps, slack_m, reach)
+    # headings of the new velocities, then yaws, face-offs and stuck pedestrians
+    heading = np.empty(new_vel.shape[0])
+    for i in range(new_vel.shape[0]):
+        heading[i] = math.atan2(new_vel[i, 1], new_vel[i, 0])
+    new_yaw, rate, events = crowd_react(new_pos, new_vel, heading, yaw, dirs, arrived, yield_s, blocked_s, priority,
+                                        circles, radius_m, anchor_xy, anchor_t, time_s, dt_s, turning, blocking,
+                                        stuck)
+    return new_pos, new_vel, new_yaw, rate, events
+
+
+@njit(cache=True, error_model="numpy")
 def _largest_step(before: np.ndarray, after: np.ndarray) -> float:
     """The longest of the (N, 2) moves ``after − before``, metres (−inf for nobody)."""
     out = -np.inf
@@ -948,7 +1001,7 @@ def _largest_step(before: np.ndarray, after: np.ndarray) -> float:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def crowd_react(pos: np.ndarray, vel: np.ndarray, heading: np.ndarray, yaw: np.ndarray, dirs: np.ndarray,
                 arrived: np.ndarray, yield_s: np.ndarray, blocked_s: np.ndarray, priority: np.ndarray,
                 circles: np.ndarray, radius_m: float, anchor_xy: np.ndarray, anchor_t: np.ndarray, time_s: float,
@@ -973,13 +1026,13 @@ def crowd_react(pos: np.ndarray, vel: np.ndarray, heading: np.ndarray, yaw: np.n
     return new_yaw, rate, events
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wrap(angle_rad: float) -> float:
     """``angle_rad`` wrapped to [-π, π) as :func:`simnav.agents.crowd.wrap_angle` does."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _turn(vel: np.ndarray, heading: np.ndarray, yaw: np.ndarray, dt_s: float,
           turning: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Turn towards the (N,) headings of the (N, 2) velocities (m/s): new yaws (rad) and yaw rates (rad/s).
@@ -998,7 +1051,7 @@ def _turn(vel: np.ndarray, heading: np.ndarray, yaw: np.ndarray, dt_s: float,
     return new_yaw, rate
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _blocking(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, arrived: np.ndarray, yield_s: np.ndarray,
               blocked_s: np.ndarray, priority: np.ndarray, circles: np.ndarray, radius_m: float, dt_s: float,
               blocking: tuple[float, float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -1040,7 +1093,7 @@ def _blocking(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, arrived: np.nd
     return out[:count], blocker
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def closest_in_way(pos: np.ndarray, dirs: np.ndarray, others: np.ndarray, reach: np.ndarray,
                    cos_half_angle: float) -> tuple[np.ndarray, np.ndarray]:
     """Who stands in each pedestrian's way: (N,) whether anyone does, and (N,) the index of the closest (else 0).
@@ -1070,7 +1123,7 @@ def closest_in_way(pos: np.ndarray, dirs: np.ndarray, others: np.ndarray, reach:
     return in_way, blocker
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _stuck(pos: np.ndarray, arrived: np.ndarray, anchor_xy: np.ndarray, anchor_t: np.ndarray, time_s: float,
            stuck: tuple[float, float]) -> np.ndarray:
     """Indices of those who made less than ``stuck[0]`` metres of progress in ``stuck[1]`` seconds.

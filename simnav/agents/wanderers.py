@@ -129,11 +129,9 @@ class Wanderers:
         obstacles = self._no_obstacles if obstacles_xy is None else np.ascontiguousarray(obstacles_xy, dtype=float)
         if obstacles.ndim != 2 or obstacles.shape[1] != 2:
             obstacles = obstacles.reshape(-1, 2)
-        # the heading and bearings with numpy's arctan2 (the last bit of libm's differs), the rest in one pass
-        yx = _sightlines(self._pos, self._next, self._nodes_xy, obstacles)
-        angles = np.arctan2(yx[0], yx[1])
+        # headings, bearings, the drive and the blocked times in one pass
         self._yaw, self._yaw_rate, self._vel, self._pos, reached = _advance(
-            self._pos, self._yaw, self._prev, self._next, self._blocked_s, self._nodes_xy, obstacles, angles,
+            self._pos, self._yaw, self._prev, self._next, self._blocked_s, self._nodes_xy, obstacles,
             self._speed_m_s, dt_s, min(HEADING_GAIN_1_S, 1.0 / dt_s), self._reached,
         )
         if reached:
@@ -198,13 +196,13 @@ class Wanderers:
         return not spots or float(np.min(np.linalg.norm(np.array(spots) - xy, axis=1))) >= too_close
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wrap(angle_rad: float) -> float:
     """``angle_rad`` wrapped to [-π, π) as :func:`simnav.agents.crowd.wrap_angle` does."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _offsets(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray,
              obstacles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, 2) offsets from the N robots to their next nodes, and (N, P, 2) to the points that may block them: the
@@ -219,26 +217,13 @@ def _offsets(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray,
     return to_next, rel
 
 
-@njit(cache=True)
-def _sightlines(pos: np.ndarray, next_nodes: np.ndarray, nodes_xy: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
-    """The :func:`_offsets` as the y (row 0) and x (row 1) arguments of ``arctan2``: (2, N + N·P), the next nodes
-    first."""
-    to_next, rel = _offsets(pos, next_nodes, nodes_xy, obstacles)
-    n, p = rel.shape[0], rel.shape[1]
-    out = np.empty((2, n + n * p))
-    for i in range(n):
-        out[0, i], out[1, i] = to_next[i, 1], to_next[i, 0]
-        for k in range(p):
-            out[0, n + i * p + k], out[1, n + i * p + k] = rel[i, k, 1], rel[i, k, 0]
-    return out
-
-
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_nodes: np.ndarray, blocked_s: np.ndarray,
-             nodes_xy: np.ndarray, obstacles: np.ndarray, angles: np.ndarray, speed_m_s: float, dt_s: float,
-             gain_1_s: float, reached: np.ndarray) -> tuple:
-    """One step of N robots: :func:`_drive` (``angles``: the ``arctan2`` of :func:`_sightlines`), then the blocked
-    times (N,) counted and the edges of robots blocked for BLOCKED_TIMEOUT_S turned round, in place.
+             nodes_xy: np.ndarray, obstacles: np.ndarray, speed_m_s: float, dt_s: float, gain_1_s: float,
+             reached: np.ndarray) -> tuple:
+    """One step of N robots: :func:`_drive` on the directions of the :func:`_offsets` (libm's ``atan2``, within
+    an ulp of numpy's ``arctan2``), then the blocked times (N,) counted and the edges of robots blocked for
+    BLOCKED_TIMEOUT_S turned round, in place.
 
     Returns:
         New yaws (rad), yaw rates (rad/s), velocities (m/s), positions (m), and how many robots are within
@@ -246,8 +231,12 @@ def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_node
     """
     n = pos.shape[0]
     to_next, rel = _offsets(pos, next_nodes, nodes_xy, obstacles)
-    bearing = angles[n:].reshape((n, rel.shape[1]))
-    new_yaw, rate, vel, new_pos, blocked = _drive(pos, yaw, to_next, angles[:n], rel, bearing, speed_m_s, dt_s,
+    heading, bearing = np.empty(n), np.empty((n, rel.shape[1]))
+    for i in range(n):
+        heading[i] = math.atan2(to_next[i, 1], to_next[i, 0])
+        for k in range(rel.shape[1]):
+            bearing[i, k] = math.atan2(rel[i, k, 1], rel[i, k, 0])
+    new_yaw, rate, vel, new_pos, blocked = _drive(pos, yaw, to_next, heading, rel, bearing, speed_m_s, dt_s,
                                                   gain_1_s)
     count = 0
     for i in range(n):
@@ -262,7 +251,7 @@ def _advance(pos: np.ndarray, yaw: np.ndarray, prev_nodes: np.ndarray, next_node
     return new_yaw, rate, vel, new_pos, count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _drive(pos: np.ndarray, yaw: np.ndarray, to_next: np.ndarray, heading: np.ndarray, rel: np.ndarray,
            bearing: np.ndarray, speed_m_s: float, dt_s: float,
            gain_1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -399,7 +399,7 @@ def _make_pose_source(name: str, robot: RobotSpec):
     return PoseSource(name, robot)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scaled_ranges(ranges_m: np.ndarray, scale: np.float32) -> np.ndarray:
     """(B,) float32 ``ranges_m · scale`` capped at 1, and 1 where a range is invalid (<= 0)."""
     out = np.empty(ranges_m.shape[0], dtype=np.float32)

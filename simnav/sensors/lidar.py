@@ -15,11 +15,13 @@ from numba import njit
 
 from simnav.robot.spec import Lidar2DSensor, Lidar3DSensor
 from simnav.sensors.noise import lidar_noise
-from simnav.sensors.planar_rays import SUPPORTED_TYPES, cast_planar, world_azimuths
+from simnav.sensors.planar_rays import CAPSULE, SUPPORTED_TYPES, cast_planar_scan, fixed_sections
 from simnav.sensors.presets import resolve_lidar2d, resolve_lidar3d
 from simnav.sensors.readings import LaserScan, PointCloud
 from simnav.world.mjcf import GROUP_COLLISION, GROUP_MOVING
 
+MAX_FIXED_HEIGHTS = 16  # scan heights whose fixed sections a caster keeps
+_MISSING = object()
 RAY_GROUPS = np.zeros(6, dtype=np.uint8)
 RAY_GROUPS[[GROUP_COLLISION, GROUP_MOVING]] = 1
 
@@ -51,30 +53,55 @@ class RayCaster:
         covered = all(int(t) in SUPPORTED_TYPES for t in model.geom_type[self._seen])
         self.planar = in_plane and covered if planar is None else planar and in_plane and covered
         self._azimuth_sensor = np.arctan2(self._dirs[:, 1], self._dirs[:, 0])
-        self._azimuth_world = np.empty(len(self._dirs))
+        self._ranges = np.empty(len(self._dirs))
         self._dirs_world, self._rotation_t = np.empty_like(self._dirs), np.empty((3, 3))
         self._geoms = (model.geom_type, model.geom_size, model.geom_rbound)  # views of the model's arrays
-        self._data, self._poses = None, ()
+        self._fixed_ids, self._moving_ids = _split_fixed(model, self._seen)
+        self._data, self._poses, self._fixed = None, (), {}
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """(N,) distances to the first hit along each ray, metres; 0 where nothing is hit within max range."""
         if data is not self._data:  # views of the data's site and geom poses, kept while the data is the same
             self._data, self._poses = data, (data.site_xpos, data.site_xmat, data.geom_xpos, data.geom_xmat)
+            self._fixed = {}
         site_xpos, site_xmat, geom_xpos, geom_xmat = self._poses
         origin, mat = site_xpos[self._site].copy(), site_xmat[self._site]
+        fixed = self._fixed_sections(origin[2], geom_xpos, geom_xmat) if self.planar else None
+        if fixed is not None and cast_planar_scan(origin, mat, self._dirs, self._azimuth_sensor, fixed,
+                                                  self._moving_ids, *self._geoms, geom_xpos, geom_xmat,
+                                                  self._max_range, self._dirs_world, self._dist, self._geomid,
+                                                  self._ranges):
+            return self._ranges.copy()
         # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
         np.copyto(self._rotation_t, mat.reshape(3, 3).T)
         dirs_world = np.matmul(self._dirs, self._rotation_t, out=self._dirs_world)
-        if self.planar:
-            world_azimuths(self._azimuth_sensor, mat, self._azimuth_world)
-        if not (self.planar and cast_planar(origin, dirs_world, self._azimuth_world, self._seen, *self._geoms,
-                                            geom_xpos, geom_xmat, self._max_range, self._dist, self._geomid)):
-            mujoco.mj_multiRay(self._model, data, origin, dirs_world.ravel(), RAY_GROUPS, 1, self._exclude,
-                               self._geomid, self._dist, None, len(self._dirs), self._max_range + 1.0)
+        mujoco.mj_multiRay(self._model, data, origin, dirs_world.ravel(), RAY_GROUPS, 1, self._exclude,
+                           self._geomid, self._dist, None, len(self._dirs), self._max_range + 1.0)
         return _in_range(self._dist, self._geomid, self._max_range)
 
+    def _fixed_sections(self, oz: float, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray | None:
+        """The sections of the geoms that never move at the scan height ``oz`` (m), made once per height (a
+        sensor's height takes a few values an ulp apart as the robot turns); None when one leaves the planar
+        model."""
+        rows = self._fixed.get(oz, _MISSING)
+        if rows is _MISSING:
+            if len(self._fixed) >= MAX_FIXED_HEIGHTS:
+                self._fixed.clear()
+            rows = self._fixed[oz] = fixed_sections(oz, self._fixed_ids, *self._geoms, geom_xpos, geom_xmat)
+        return rows
 
-@njit(cache=True)
+
+def _split_fixed(model: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The geoms whose sections can be made once (welded to the world, not capsules, whose lying sections depend
+    on the origin), and the others; the first are all of them before the first other one (geom order decides
+    ties)."""
+    body = model.geom_bodyid[geoms]
+    fixed = (model.body_weldid[body] == 0) & (model.body_mocapid[body] < 0) & (model.geom_type[geoms] != CAPSULE)
+    first_other = int(np.argmin(fixed)) if not fixed.all() else len(geoms)
+    return geoms[:first_other].copy(), geoms[first_other:].copy()
+
+
+@njit(cache=True, error_model="numpy")
 def _in_range(dist: np.ndarray, geomid: np.ndarray, max_range_m: float) -> np.ndarray:
     """(N,) the ray distances ``dist`` (m) of the rays that hit a geom (``geomid`` >= 0) within [0, max range],
     else 0."""

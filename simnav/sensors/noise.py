@@ -30,7 +30,7 @@ def lidar_noise(
     return out.reshape(ranges_m.shape)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _noisy_ranges(ranges_m: np.ndarray, normals: np.ndarray, noise_std_m: float, uniforms: np.ndarray,
                   dropout_prob: float, min_range_m: float, max_range_m: float) -> np.ndarray:
     """(N,) float32 ``ranges_m + noise_std_m · normals`` where the ideal range is valid (> 0), the beam not dropped

@@ -27,10 +27,11 @@ RECT, CIRCLE = 0.0, 1.0  # kinds of section rows
 SECTION_FIELDS = 10
 VERTICAL_TOL = 1e-9  # |z| of a unit vector still treated as horizontal (or 1 - |z| as vertical)
 ANGLE_SPARE_RAD = 1e-9  # added to computed angular extents (far below a bin, far above their rounding)
+CULL_SPARE_M = 1e-9  # taken off a section's distance before rays with closer hits skip it (far above its rounding)
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, geom_ids: np.ndarray,
                 geom_type: np.ndarray, geom_size: np.ndarray, geom_rbound: np.ndarray, geom_xpos: np.ndarray,
                 geom_xmat: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> bool:
@@ -50,27 +51,109 @@ def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, g
     Returns:
         False when the rays or a geom leave the planar model (outputs then undefined), else True.
     """
-    n = dirs.shape[0]
+    if not _horizontal(dirs, dist_out, geom_out):
+        return False
+    # 1. The 2D section of every geom that crosses the scan plane, in geom order (ties go to the first).
+    sections = np.empty((3 * len(geom_ids), SECTION_FIELDS))
+    count = _collect_sections(origin[0], origin[1], origin[2], geom_ids, geom_type, geom_size, geom_rbound,
+                              geom_xpos, geom_xmat, sections, 0)
+    if count < 0:
+        return False
+    # 2. Every section against the rays of its azimuth bins.
+    _cast_sections(origin[0], origin[1], sections, count, dirs, *_bin_rays(azimuth_rad), max_dist_m, dist_out,
+                   geom_out)
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def fixed_sections(oz: float, geom_ids: np.ndarray, geom_type: np.ndarray, geom_size: np.ndarray,
+                   geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray:
+    """The sections, at height ``oz`` (m), of geoms that never move (no lying capsules among them: their sections
+    depend on the origin), in geom order: (S, SECTION_FIELDS) rows for :func:`cast_planar_scan`, or None when a
+    geom leaves the planar model."""
+    sections = np.empty((3 * len(geom_ids), SECTION_FIELDS))
+    count = _collect_sections(0.0, 0.0, oz, geom_ids, geom_type, geom_size, geom_rbound, geom_xpos, geom_xmat,
+                              sections, 0)
+    return sections[:count].copy() if count >= 0 else None
+
+
+@njit(cache=True, error_model="numpy")
+def cast_planar_scan(origin: np.ndarray, mat: np.ndarray, dirs_sensor: np.ndarray, sensor_azimuth_rad: np.ndarray,
+                     fixed: np.ndarray, geom_ids: np.ndarray, geom_type: np.ndarray, geom_size: np.ndarray,
+                     geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray, max_dist_m: float,
+                     dirs: np.ndarray, dist_out: np.ndarray, geom_out: np.ndarray, ranges_out: np.ndarray) -> bool:
+    """:func:`cast_planar` for a sensor whose xy plane is horizontal, with the rays turned into the world here,
+    the sections of the geoms that never move made beforehand, and the ranges within reach written out.
+
+    Args:
+        origin: (3,) sensor position, world frame, m. mat: (9,) its orientation, row-major (world from sensor).
+        dirs_sensor: (N, 3) unit ray directions, sensor frame. sensor_azimuth_rad: (N,) their azimuths, rad.
+        fixed: (S, SECTION_FIELDS) sections of the geoms that never move (:func:`fixed_sections` at the
+            origin's height), all with lower geom ids than ``geom_ids``.
+        geom_ids: (K,) the other geoms to test. geom_type ... geom_xmat, max_dist_m, dist_out, geom_out: as
+            :func:`cast_planar`.
+        dirs: (N, 3) written: the ray directions, world frame.
+        ranges_out: (N,) written: the hit distances within [0, max_dist_m], else 0, m.
+
+    Returns:
+        False when the rays or a geom leave the planar model (outputs then undefined), else True.
+    """
+    n = dirs_sensor.shape[0]
     for i in range(n):
+        for r in range(3):
+            dirs[i, r] = dirs_sensor[i, 0] * mat[3 * r] + dirs_sensor[i, 1] * mat[3 * r + 1] + \
+                dirs_sensor[i, 2] * mat[3 * r + 2]
+    if not _horizontal(dirs, dist_out, geom_out):
+        return False
+    # 1. The fixed sections, then those of the other geoms, in geom order.
+    sections = np.empty((fixed.shape[0] + 3 * len(geom_ids), SECTION_FIELDS))
+    sections[:fixed.shape[0]] = fixed
+    count = _collect_sections(origin[0], origin[1], origin[2], geom_ids, geom_type, geom_size, geom_rbound,
+                              geom_xpos, geom_xmat, sections, fixed.shape[0])
+    if count < 0:
+        return False
+    # 2. Every section against the rays of its azimuth bins (world azimuths).
+    azimuth = np.empty(n)
+    world_azimuths(sensor_azimuth_rad, mat, azimuth)
+    _cast_sections(origin[0], origin[1], sections, count, dirs, *_bin_rays(azimuth), max_dist_m, dist_out,
+                   geom_out)
+    # 3. The hits within reach.
+    for i in range(n):
+        d = dist_out[i]
+        ranges_out[i] = d if geom_out[i] >= 0 and d >= 0.0 and d <= max_dist_m else 0.0
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _horizontal(dirs: np.ndarray, dist_out: np.ndarray, geom_out: np.ndarray) -> bool:
+    """Whether every ray of ``dirs`` (N, 3) is horizontal; the outputs (N,) start with no hit (-1)."""
+    for i in range(dirs.shape[0]):
         if abs(dirs[i, 2]) > VERTICAL_TOL:
             return False
         dist_out[i] = -1.0
         geom_out[i] = -1
-    # 1. The 2D section of every geom that crosses the scan plane, in geom order (ties go to the first).
-    sections, count = np.empty((3 * len(geom_ids), SECTION_FIELDS)), 0
-    oz = origin[2]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _collect_sections(ox: float, oy: float, oz: float, geom_ids: np.ndarray, geom_type: np.ndarray,
+                      geom_size: np.ndarray, geom_rbound: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray,
+                      sections: np.ndarray, count: int) -> int:
+    """Write the 2D sections at height ``oz`` (m) of the geoms ``geom_ids``, in order, after the first ``count``
+    rows of ``sections``; (ox, oy) is the ray origin (m). Returns the new count, or -1 when a geom leaves the
+    planar model."""
     for g in geom_ids:
         # Scalars only: views or array arguments would cost reference counting per geom.
         t, dz, m8 = geom_type[g], abs(oz - geom_xpos[g, 2]), geom_xmat[g, 8]
         if t == PLANE:
             if abs(m8) < 1.0 - VERTICAL_TOL:
-                return False
+                return -1
         elif dz > geom_rbound[g]:
             continue  # entirely above or below the scan plane
         elif t == BOX:
             up = _vertical_axis(geom_xmat[g, 6], geom_xmat[g, 7], m8)
             if up < 0:
-                return False
+                return -1
             if dz <= geom_size[g, up]:
                 a, b = (up + 1) % 3, (up + 2) % 3
                 count = _put(sections, count, (RECT, float(g), geom_xpos[g, 0], geom_xpos[g, 1], geom_xmat[g, a],
@@ -79,24 +162,20 @@ def cast_planar(origin: np.ndarray, dirs: np.ndarray, azimuth_rad: np.ndarray, g
         elif t == SPHERE or abs(m8) >= 1.0 - VERTICAL_TOL:
             r = _section_radius(t, geom_size[g, 0], geom_size[g, 1], dz)
             if r < 0.0:
-                return False
+                return -1
             if r > 0.0:
                 row = (CIRCLE, float(g), geom_xpos[g, 0], geom_xpos[g, 1], r, 0.0, 0.0, 0.0, 0.0, 0.0)
                 count = _put(sections, count, row)
         elif abs(m8) <= VERTICAL_TOL:
-            count = _lying_sections(origin[0], origin[1], t, geom_xpos[g], geom_xmat[g], geom_size[g], dz, g,
-                                    sections, count)
+            count = _lying_sections(ox, oy, t, geom_xpos[g], geom_xmat[g], geom_size[g], dz, g, sections, count)
             if count < 0:
-                return False
+                return -1
         else:
-            return False
-    # 2. Every section against the rays of its azimuth bins.
-    _cast_sections(origin[0], origin[1], sections, count, dirs, *_bin_rays(azimuth_rad), max_dist_m, dist_out,
-                   geom_out)
-    return True
+            return -1
+    return count
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _put(sections: np.ndarray, count: int, row: tuple) -> int:
     """Writes ``row`` (SECTION_FIELDS numbers) as section ``count``; returns the new count."""
     for k in range(SECTION_FIELDS):
@@ -104,7 +183,7 @@ def _put(sections: np.ndarray, count: int, row: tuple) -> int:
     return count + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: np.ndarray, size: np.ndarray,
                     dz: float, g: int, sections: np.ndarray, count: int) -> int:
     """Sections of a cylinder or capsule whose axis is horizontal: a rectangle, plus end circles for the
@@ -132,7 +211,7 @@ def _lying_sections(ox: float, oy: float, geom_type: int, pos: np.ndarray, mat: 
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _vertical_axis(m6: float, m7: float, m8: float) -> int:
     """Index of the geom axis along world z, from the last row ``m6, m7, m8`` of its row-major rotation, or -1 if
     none is."""
@@ -142,7 +221,7 @@ def _vertical_axis(m6: float, m7: float, m8: float) -> int:
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _section_radius(geom_type: int, size0: float, size1: float, dz: float) -> float:
     """Radius of an upright round geom's section ``dz`` from its centre, from its first two sizes (0: the plane
     misses it; -1: unknown type)."""
@@ -158,7 +237,7 @@ def _section_radius(geom_type: int, size0: float, size1: float, dz: float) -> fl
     return -1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bin_rays(azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rays sorted by azimuth bin: ``order[start[b]:start[b + 1]]`` are the rays of bin ``b``."""
     n = azimuth_rad.shape[0]
@@ -178,14 +257,14 @@ def _bin_rays(azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return start, order
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _azimuth_bin(azimuth_rad: float) -> int:
     """Bin of an azimuth, any real angle (wrapped)."""
     b = int(math.floor((azimuth_rad + math.pi) * (AZIMUTH_BINS / _TWO_PI))) % AZIMUTH_BINS
     return b + AZIMUTH_BINS if b < 0 else b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_azimuths(sensor_azimuth_rad: np.ndarray, mat: np.ndarray, out: np.ndarray) -> None:
     """Azimuths in the world of rays in a sensor's xy plane, for a sensor whose xy plane is horizontal.
 
@@ -200,7 +279,7 @@ def world_azimuths(sensor_azimuth_rad: np.ndarray, mat: np.ndarray, out: np.ndar
         out[i] = heading + mirror * sensor_azimuth_rad[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bin_span(center_rad: float, half_width_rad: float) -> tuple[int, int]:
     """First and last bin (the last may exceed the bin count: wrap it) covering an azimuth interval, padded."""
     if half_width_rad >= math.pi:
@@ -212,12 +291,12 @@ def _bin_span(center_rad: float, half_width_rad: float) -> tuple[int, int]:
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs: np.ndarray, start: np.ndarray,
                    order: np.ndarray, max_dist_m: float, dist_out: np.ndarray, geom_out: np.ndarray) -> None:
     """The rays from ``(ox, oy)`` against the first ``count`` sections (rows ``kind, geom, cx, cy, ...``): a ray
-    keeps its first non-negative hit. Written out in one loop: per-section calls with array arguments would cost
-    reference counting per geom."""
+    keeps its first non-negative hit, and skips a section lying entirely beyond a hit it has. Written out in one
+    loop: per-section calls with array arguments would cost reference counting per geom."""
     for s in range(count):
         kind, g, cx, cy = sections[s, 0], int(sections[s, 1]), sections[s, 2], sections[s, 3]
         px, py = ox - cx, oy - cy
@@ -229,10 +308,13 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                 continue
             lo, hi = _bin_span(math.atan2(-py, -px), math.pi if d <= r else math.asin(r / d))
             c = px * px + py * py - r * r
+            near = d - r - CULL_SPARE_M  # a ray that already hit closer than this cannot hit it closer
             for b in range(lo, hi + 1):
                 bb = b % AZIMUTH_BINS
                 for j in range(start[bb], start[bb + 1]):
                     i = order[j]
+                    if geom_out[i] >= 0 and dist_out[i] < near:
+                        continue
                     half_b = px * dirs[i, 0] + py * dirs[i, 1]
                     disc = half_b * half_b - c
                     if disc < 0.0:
@@ -249,16 +331,20 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                 sections[s, 8], sections[s, 9]
             pu, pv = px * ux + py * uy, px * vx + py * vy  # origin in the rectangle's frame
             gap_u, gap_v = max(abs(pu) - hu, 0.0), max(abs(pv) - hv, 0.0)
-            if math.sqrt(gap_u * gap_u + gap_v * gap_v) > max_dist_m:
+            gap = math.sqrt(gap_u * gap_u + gap_v * gap_v)
+            if gap > max_dist_m:
                 continue
             inside = abs(pu) <= hu and abs(pv) <= hv
             center = math.atan2(-py, -px)
             half = math.pi if inside else _rect_half_width(px, py, ux, uy, vx, vy, hu, hv)
             lo, hi = _bin_span(center, half)
+            near = gap - CULL_SPARE_M  # a ray that already hit closer than this cannot hit it closer
             for b in range(lo, hi + 1):
                 bb = b % AZIMUTH_BINS
                 for j in range(start[bb], start[bb + 1]):
                     i = order[j]
+                    if geom_out[i] >= 0 and dist_out[i] < near:
+                        continue
                     du = dirs[i, 0] * ux + dirs[i, 1] * uy
                     dv = dirs[i, 0] * vx + dirs[i, 1] * vy
                     t = _slab_hit(pu, pv, du, dv, hu, hv)
@@ -266,7 +352,7 @@ def _cast_sections(ox: float, oy: float, sections: np.ndarray, count: int, dirs:
                         dist_out[i], geom_out[i] = t, g
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: float, hu: float,
                      hv: float) -> float:
     """Largest angle between the direction to the centre and the direction to a corner, seen from outside (each
@@ -281,7 +367,7 @@ def _rect_half_width(px: float, py: float, ux: float, uy: float, vx: float, vy: 
     return half + ANGLE_SPARE_RAD
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _slab_hit(pu: float, pv: float, du: float, dv: float, hu: float, hv: float) -> float:
     """First non-negative t where p + t d meets the boundary of [-hu, hu] x [-hv, hv], or -1."""
     t_near, t_far = -np.inf, np.inf

@@ -178,7 +178,7 @@ def _mocap_geoms(model: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, 
             body_reach.reshape(-1))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _clear_steps(steps: int, base_q: np.ndarray, base_v: np.ndarray, robot: np.ndarray, fixed: np.ndarray,
                  table_origin: np.ndarray, table: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
                  mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray,
@@ -199,7 +199,7 @@ def _clear_steps(steps: int, base_q: np.ndarray, base_v: np.ndarray, robot: np.n
     return min(steps, int(room / step_m)) if room > 0.0 else 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fixed_clearance(px: float, py: float, rows: np.ndarray, origin: np.ndarray, table: np.ndarray) -> float:
     """A lower bound of the floor-plane distance from ``(px, py)`` to the fixed geoms less their margins, m: the
     table's cell (computed on first use at the cell centre, less the half diagonal), or exact off the table."""
@@ -212,7 +212,7 @@ def _fixed_clearance(px: float, py: float, rows: np.ndarray, origin: np.ndarray,
     return table[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nearest(px: float, py: float, rows: np.ndarray) -> float:
     """Smallest floor-plane distance from ``(px, py)`` to the shape rows less their margins, m (inf for none)."""
     out = np.inf
@@ -221,7 +221,7 @@ def _nearest(px: float, py: float, rows: np.ndarray) -> float:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mocap_room(px: float, py: float, radius_m: float, room_m: float, mocap_pos: np.ndarray, mocap_quat: np.ndarray,
                 mocap: np.ndarray, spans: np.ndarray, local: np.ndarray, types: np.ndarray,
                 body_reach: np.ndarray) -> float:
@@ -247,7 +247,7 @@ def _mocap_room(px: float, py: float, radius_m: float, room_m: float, mocap_pos:
     return room_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _shape_row(geom_type: int, size0: float, size1: float, size2: float, rbound_m: float, xpos: np.ndarray,
                xmat: np.ndarray, out: np.ndarray, k: int) -> None:
     """Row ``k`` of ``out`` (R, SHAPE_FIELDS), but its margin: the floor-plane bound of a geom of sizes
@@ -278,7 +278,7 @@ def _shape_row(geom_type: int, size0: float, size1: float, size2: float, rbound_
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = DISC, cx, cy, rbound_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _upright_axis(xmat: np.ndarray) -> int:
     """Index of the geom axis along world z (row 3 of the row-major ``xmat``), or -1."""
     for k in range(3):
@@ -287,7 +287,7 @@ def _upright_axis(xmat: np.ndarray) -> int:
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gap(px: float, py: float, rows: np.ndarray, k: int) -> float:
     """Floor-plane distance from ``(px, py)`` to the shape of row ``k`` of ``rows``, m (negative inside; -inf for
     NEAR)."""
@@ -310,7 +310,7 @@ def _gap(px: float, py: float, rows: np.ndarray, k: int) -> float:
     return -np.inf
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _quat_to_mat(w: float, x: float, y: float, z: float, out: np.ndarray) -> None:
     """Row-major rotation matrix (9,) of the quaternion (w, x, y, z), normalised first."""
     norm = math.sqrt(w * w + x * x + y * y + z * z)

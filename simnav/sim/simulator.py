@@ -8,6 +8,7 @@ acquisition time and becomes available ``latency_s`` later.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import logging
 import math
@@ -80,7 +81,8 @@ class Simulator:
         self.sensors = self._make_sensors()
         self._encoders = [s for s in self.sensors if isinstance(s, WheelEncoders)]
         self._sees_scene = [not isinstance(s, WheelEncoders) for s in self.sensors]
-        self._capture_rank = [0 if isinstance(s, RGBDCamera) else 1 for s in self.sensors]  # cameras first
+        self._is_camera = [isinstance(s, RGBDCamera) for s in self.sensors]
+        self._capture_rank = [0 if camera else 1 for camera in self._is_camera]  # cameras first
         self.reset(seed)
 
     # ------------------------------------------------------------------------------------------------ set-up
@@ -173,7 +175,7 @@ class Simulator:
     @property
     def time_s(self) -> float:
         """Simulation time, s (whole physics steps times the step, free of accumulated rounding)."""
-        return round(self._step_count * self._dt_s, 9)
+        return _step_time(self._step_count, self._dt_s)
 
     def step(self, v_m_s: float, w_rad_s: float, *, measured: bool = False) -> list[Reading]:
         """Command (v, w) and advance one control period.
@@ -218,9 +220,9 @@ class Simulator:
         dt = self._dt_s
         pause = math.ceil(t_s / dt - 1e-6)
         k = max(pause, 0)
-        while k > 0 and t_s <= round((k - 1) * dt, 9) + _EPS_S:
+        while k > 0 and t_s <= _step_time(k - 1, dt) + _EPS_S:
             k -= 1
-        while t_s > round(k * dt, 9) + _EPS_S:
+        while t_s > _step_time(k, dt) + _EPS_S:
             k += 1
         return pause, k
 
@@ -292,6 +294,9 @@ class Simulator:
                 for s in encoders:
                     s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
             history.append((k, *base_qpos.tolist()))
+            # the motor ramping on its own meanwhile: its stretches with fewer checks
+            if skipping and not encoders:
+                k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step, clear_until))
             if data.ncon:
                 self._check_contacts()
             else:
@@ -303,6 +308,27 @@ class Simulator:
             if k >= self._delivery_step:
                 delivered += self._deliver()
         return delivered
+
+    def _ramp_stretches(self, k: int, limit: int) -> int:
+        """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
+        period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
+        possible contact, which the caller bounds) and no later than a command applies or a reading is due. Only
+        for a robot without wheel encoders and with collision detection off. Returns the step reached."""
+        motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
+        if len(commands) > 1:
+            limit = min(limit, commands[1][0], commands[1][1])
+        limit = min(limit, self._next_due_step, self._delivery_step)
+        _, _, v_target, w_target = commands[0]
+        (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
+        ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
+        while k % motor == 0 and k + motor <= limit and (v_target != v or w_target != w):
+            v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
+            ctrl[0], ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
+            step(model, data, motor)
+            k += motor
+            append((k, *base_qpos.tolist()))
+        self._v_m_s, self._w_rad_s, self._step_count = v, w, k
+        return k
 
     def _posed_until(self, k: int, end: int) -> int:
         """The step after step ``k`` at which the agents may be posed next (their period, the earliest capture's
@@ -319,10 +345,8 @@ class Simulator:
         v, w = self._v_m_s, self._w_rad_s
         if k % self._motor_substeps == 0 or (v_target == v and w_target == w):
             dv_max, dw_max = self._ramp_limits
-            dv, dw = v_target - v, w_target - w
-            # the change clipped to the limits (min(max(dv, -dv_max), dv_max) without the builtin calls)
-            self._v_m_s = v = v + (dv_max if dv > dv_max else -dv_max if dv < -dv_max else dv)
-            self._w_rad_s = w = w + (dw_max if dw > dw_max else -dw_max if dw < -dw_max else dw)
+            self._v_m_s = v = _ramped(v, v_target, dv_max)
+            self._w_rad_s = w = _ramped(w, w_target, dw_max)
         ctrl = self._ctrl
         ctrl[0], ctrl[1], ctrl[2] = v, 0.0, w
 
@@ -363,8 +387,7 @@ class Simulator:
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        _pose_agents(self._mocap_pos, self._mocap_quat, *self._movers, *self._turners,
-                     max(self._agent_time_s - t_s, 0.0))
+        _pose_agents(self._mocap_pos, self._mocap_quat, self._movers, self._turners, max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -375,7 +398,8 @@ class Simulator:
         if any(map(self._sees_scene.__getitem__, due)):
             self._pose_agents_at(t)
             mujoco.mj_kinematics(self.model, self.data)
-            mujoco.mj_camlight(self.model, self.data)
+            if any(map(self._is_camera.__getitem__, due)):
+                mujoco.mj_camlight(self.model, self.data)
         # cameras first: their frames render in the background while the other sensors capture here (each sensor
         # has its own noise stream and nothing here changes the state, so the order does not change a reading)
         twists = None
@@ -502,7 +526,7 @@ class Simulator:
     def T_world_base_at(self, stamp_s: float) -> np.ndarray:
         """(4, 4) ground-truth base pose at a past time ``stamp_s`` (within the last few seconds), s."""
         k = len(self._history) - 1
-        while k > 0 and round(self._history[k][0] * self._dt_s, 9) > stamp_s + _EPS_S:
+        while k > 0 and _step_time(self._history[k][0], self._dt_s) > stamp_s + _EPS_S:
             k -= 1
         _, x, y, yaw = self._history[k]
         yaw = math.atan2(math.sin(yaw), math.cos(yaw))
@@ -548,6 +572,13 @@ class Simulator:
         self.close()
 
 
+@functools.lru_cache(maxsize=256)
+def _step_time(k: int, dt_s: float) -> float:
+    """Time of physics step ``k`` of ``dt_s`` seconds, s: ``k·dt`` rounded to the nanosecond (free of accumulated
+    rounding). Cached: the stepping asks for the same few steps many times, and ``round`` is slow."""
+    return round(k * dt_s, 9)
+
+
 def _circumradius(robot: RobotSpec) -> float:
     return max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
 
@@ -559,7 +590,14 @@ def _clamp(x: float, limit: float) -> float:
     return float(np.clip(x, -limit, limit))
 
 
-@njit(cache=True)
+def _ramped(x: float, target: float, limit: float) -> float:
+    """``x`` moved towards ``target`` by at most ``limit`` (the change ``min(max(target - x, -limit), limit)``
+    without the builtin calls)."""
+    d = target - x
+    return x + (limit if d > limit else -limit if d < -limit else d)
+
+
+@njit(cache=True, error_model="numpy")
 def _robot_rows(circles: np.ndarray, velocities: np.ndarray, base_q: np.ndarray, base_v: np.ndarray, radius_m: float,
                 others_xy: np.ndarray, others_vel: np.ndarray, others_radius_m: float) -> None:
     """Fill the (1 + N, 3) ``circles`` ``[x, y, radius]`` (m) of the robot (base ``base_q`` x, y) and of N other
@@ -571,7 +609,7 @@ def _robot_rows(circles: np.ndarray, velocities: np.ndarray, base_q: np.ndarray,
         velocities[1 + k, 0], velocities[1 + k, 1] = others_vel[k, 0], others_vel[k, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray, radius_m: float,
                  robots: int) -> None:
     """Fill ``nearby`` (P + R, 2) with the (P, 2) ``people_xy`` then the robot (``blockers[0]``), and the rows of
@@ -584,19 +622,23 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
     nearby[people, 0], nearby[people, 1] = blockers[0, 0], blockers[0, 1]
 
 
-@njit(cache=True)
-def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, people: np.ndarray, people_xy: np.ndarray,
-                 people_vel: np.ndarray, people_yaw: np.ndarray, people_rate: np.ndarray, robots: np.ndarray,
-                 robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray, robots_rate: np.ndarray,
-                 doors: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray, back_s: float) -> None:
-    """Pose the mocap bodies ``people``, ``robots`` (:func:`_pose_movers`) and ``doors`` (:func:`_pose_turners`)
-    ``back_s`` before their states (positions, velocities, yaws, yaw rates)."""
+@njit(cache=True, error_model="numpy")
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, turners: tuple, back_s: float) -> None:
+    """Pose the mocap bodies of the people and other robots (:func:`_pose_movers`) and of the doors
+    (:func:`_pose_turners`) ``back_s`` before their states.
+
+    ``movers`` = (people's mocap rows, positions, velocities, yaws, yaw rates, then the same of the other robots);
+    ``turners`` = (doors' mocap rows, yaws, yaw rates).
+    """
+    people, people_xy, people_vel, people_yaw, people_rate, robots, robots_xy, robots_vel, robots_yaw, robots_rate = \
+        movers
+    doors, doors_yaw, doors_rate = turners
     _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
     _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
     _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, xy: np.ndarray, vel: np.ndarray,
                  yaw: np.ndarray, yaw_rate: np.ndarray, back_s: float) -> None:
     """Put mocap body ``rows[k]`` on the floor at ``xy[k] - vel[k]·back_s`` (m), turned to ``yaw[k] -
@@ -609,7 +651,7 @@ def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray
         _set_yaw(mocap_quat, m, yaw[k] - yaw_rate[k] * back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray,
                   back_s: float) -> None:
     """Turn mocap body ``rows[k]`` to ``yaw[k] - yaw_rate[k]·back_s`` (rad) for the (N,) yaws and yaw rates."""
@@ -617,7 +659,7 @@ def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw
         _set_yaw(mocap_quat, rows[k], yaw[k] - yaw_rate[k] * back_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _set_yaw(mocap_quat: np.ndarray, m: int, yaw: float) -> None:
     """Mocap quaternion ``m`` (w, x, y, z): a turn by ``yaw`` (rad) about the world z axis."""
     half = yaw / 2
