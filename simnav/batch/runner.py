@@ -17,6 +17,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,8 @@ Progress = Callable[[int, int, dict[str, Any]], None]
 """Called after every finished job with (jobs done, jobs in all, the job's row)."""
 
 RAY_INSTALL_HINT = "pip install 'simnav[ray]'"
+LOCAL_RESTARTS = 2
+"""Fresh pools a local batch starts after worker processes died (see :func:`_run_local`)."""
 
 
 def run_batch(jobs: Sequence[Job], workers: int | None = None, ray_address: str | None = None,
@@ -64,25 +67,47 @@ def run_batch(jobs: Sequence[Job], workers: int | None = None, ray_address: str 
 
 
 # ------------------------------------------------------------------------------------------------------- local
-def _run_local(jobs: Sequence[Job], workers: int, progress: Progress | None) -> list[dict[str, Any]]:
-    """Worker processes started with ``spawn`` (safe with GL contexts and threads in this process)."""
+def _run_local(jobs: Sequence[Job], workers: int, progress: Progress | None,
+               function: Callable[[Job], dict[str, Any]] = run_job) -> list[dict[str, Any]]:
+    """Worker processes started with ``spawn`` (safe with GL contexts and threads in this process).
+
+    A worker that dies (a crash in native code, killed for memory) breaks the pool and every job then in flight;
+    those jobs run again in a fresh pool, up to ``LOCAL_RESTARTS`` times per batch (the rows of a job do not depend
+    on the process it runs in), so one crash does not lose the batch."""
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
+    todo = list(range(len(jobs)))
+    for _ in range(LOCAL_RESTARTS + 1):
+        todo = _run_pool(jobs, todo, workers, progress, function, rows)
+        if not todo:
+            return rows  # type: ignore[return-value]
+        log.warning("a worker process died; running %d unfinished job(s) again in a fresh pool", len(todo))
+    raise SimnavError(f"{_describe(jobs[todo[0]])} failed: worker processes died {LOCAL_RESTARTS + 1} times "
+                      f"while it ran")
+
+
+def _run_pool(jobs: Sequence[Job], todo: list[int], workers: int, progress: Progress | None,
+              function: Callable[[Job], dict[str, Any]], rows: list[dict[str, Any] | None]) -> list[int]:
+    """Run the jobs ``todo`` in one pool, filling ``rows``; returns the jobs left unfinished by a dead worker."""
     context = multiprocessing.get_context("spawn")
     render_threads = max(1, (os.cpu_count() or 1) // workers)
+    lost: list[int] = []
     with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker,
                              initargs=(render_threads,)) as pool:
-        pending = {pool.submit(run_job, job): k for k, job in enumerate(jobs)}
+        pending = {pool.submit(function, jobs[k]): k for k in todo}
         try:
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
                     k = pending.pop(future)
+                    if isinstance(future.exception(), BrokenProcessPool):
+                        lost.append(k)
+                        continue
                     rows[k] = _result(future.result, jobs[k])
-                    _report(progress, len(jobs) - len(pending), len(jobs), rows[k])
+                    _report(progress, sum(r is not None for r in rows), len(jobs), rows[k])
         except BaseException:  # a failed job or Ctrl-C: drop the jobs not started yet
             pool.shutdown(wait=False, cancel_futures=True)
             raise
-    return rows  # type: ignore[return-value]
+    return sorted(lost)
 
 
 def _init_worker(render_threads: int) -> None:

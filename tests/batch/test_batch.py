@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -80,3 +83,35 @@ def test_cli_errors_are_one_line_without_traceback(monkeypatch):
         assert "Traceback" not in result.output
     with pytest.raises(SimnavError, match="at least one job"):
         run_batch([])
+
+
+@dataclass(frozen=True)
+class _CrashOnce:
+    seed: int
+    marker: str
+
+
+def _crash_once(job: _CrashOnce) -> dict:
+    """Kills its worker process the first time any job of the batch runs (a native crash), then succeeds."""
+    marker = Path(job.marker)
+    if job.seed == 1 and not marker.exists():
+        marker.touch()
+        os._exit(134)
+    return {"seed": job.seed, "pid_ok": True}
+
+
+def test_a_worker_that_dies_does_not_lose_the_batch(tmp_path):
+    from simnav.batch.runner import LOCAL_RESTARTS, _run_local
+
+    jobs = [_CrashOnce(seed, str(tmp_path / "crashed")) for seed in range(4)]
+    rows = _run_local(jobs, 2, None, function=_crash_once)
+    assert [row["seed"] for row in rows] == [0, 1, 2, 3]
+    assert (tmp_path / "crashed").exists()
+    # a job that kills every worker it runs in fails the batch with one clear error
+    with pytest.raises(SimnavError, match=r"seed 1 failed: worker processes died 3 times"):
+        _run_local([_CrashOnce(1, str(tmp_path / "never"))], 1, None, function=_crash_always)
+    assert LOCAL_RESTARTS == 2
+
+
+def _crash_always(job: _CrashOnce) -> dict:
+    os._exit(134)
