@@ -8,7 +8,7 @@ so they can serve as ground truth for scene flow.
 Two rules keep the crowd moving where the force model alone locks up. Face-offs (two people meeting in a
 doorway) end when one of them, the one of lower priority after 1.5 s or either after 4 s, steps back for a
 moment. Anybody who makes less than 0.3 m of progress in 10 s re-plans from the nearest roadmap node in
-sight to a new goal.
+sight to a new goal. People keep ``circle_clearance_m`` of personal space from a robot (the round obstacles).
 """
 
 from __future__ import annotations

@@ -286,7 +286,7 @@ class PTG:
         k, d_m, err = k_all[flat.ravel()][pick], cand_d[pick], cand_e[pick]
         exact = err <= tolerance_m
         if not exact.all():
-            k[~exact], d_m[~exact], err[~exact] = self._continuation(p[~exact])
+            k[~exact], d_m[~exact], err[~exact] = self.continuation(p[~exact])
         return k.astype(np.int64), d_m / self.ref_distance_m, exact, err
 
     def inverse_map_ws2tp(self, x_m: float, y_m: float, tolerance_m: float = 0.10) -> TPPoint:
@@ -313,8 +313,13 @@ class PTG:
         """Cost of turning in the continuation: the arc length per radian of the tightest turn, ``V / W``."""
         return max(self.config.turning_radius_ref_m, self.config.v_max_mps / self.config.w_max_radps)
 
-    def _continuation(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cheapest "path k to sample n, turn in place, straight" continuation to each point (n >= 1).
+    def continuation(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cheapest "path k to sample n, turn in place, straight" continuation to each point (n >= 1): how a point off
+        every path is mapped (by :meth:`inverse_map_ws2tp_many` and
+        :meth:`~simnav.navigation.ptgspace.PTGSpace.inverse_map_many`).
+
+        Args:
+            p: (F, 2) points in the base frame, m.
 
         Returns:
             ``(k (F,), cost_m (F,), straight_m (F,))``.

@@ -202,7 +202,7 @@ class PTGSpace:
                             self._end_dist, self.ptg.ref_distance_m, k, d, exact)
         off = np.nonzero(~exact & (d <= 1.0))[0]
         if len(off):
-            k_off, cost_m, _ = self.ptg._continuation(p[off])
+            k_off, cost_m, _ = self.ptg.continuation(p[off])
             k[off], d[off] = k_off, cost_m / self.ptg.ref_distance_m
         return k, d, exact
 
