@@ -58,6 +58,11 @@ NARROW_NODE_CLEARANCE_M = 0.75
 NARROW_NODE_TOLERANCE_M = 0.3
 """... within this distance, m."""
 
+DOOR_APPROACH_TOLERANCE_M = 0.15
+"""The approach waypoint before a narrow node is passed within this distance, facing the narrow node (within the
+navigator's ``waypoint_heading_tolerance_rad``; it turns in place there): a robot that cut the corner into a doorway
+off its axis had no path left through it, m."""
+
 DOOR_APPROACH_M = 0.6
 """A narrow node is approached through a waypoint this far before it, towards the previous node of the route (and
 left through one as far after it), so that the robot lines up with a doorway instead of cutting into it at an
@@ -332,10 +337,10 @@ class _MissionRunner:
 
     def _follow(self, route: list[int]) -> None:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
-        xy, skip, near = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
-                                         self.nav.config.waypoint_allowed_distance_m)
+        xy, skip, near, heading = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
+                                                  self.nav.config.waypoint_allowed_distance_m)
         self._route_xy = xy
-        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near)
+        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading)
 
     def _close_target(self, row, reached: bool) -> None:
         row.reached = reached
@@ -524,11 +529,12 @@ def _write_nav_log(path: Path, rows: list[tuple]) -> None:
 
 
 def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray,
-                    free_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    free_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
-    previous node, also to be passed) and one as far after them (towards the next node, skippable); other nodes may
-    be cut once a later waypoint is reachable and count as passed within ``free_m``.
+    previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
+    far after them (towards the next node, skippable); other nodes may be cut once a later waypoint is reachable and
+    count as passed within ``free_m``.
 
     Args:
         nodes_xy: (N, 2) roadmap nodes, m.
@@ -537,14 +543,16 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
         free_m: allowed distance of the other nodes, m.
 
     Returns:
-        (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m).
+        (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m), (W,) heading to pass them at (rad,
+        NaN: any).
     """
-    xy, skip, near = [], [], []
+    xy, skip, near, heading = [], [], [], []
 
-    def add(p: np.ndarray, may_skip: bool, allowed_m: float) -> None:
+    def add(p: np.ndarray, may_skip: bool, allowed_m: float, heading_rad: float = math.nan) -> None:
         xy.append(p)
         skip.append(may_skip)
         near.append(allowed_m)
+        heading.append(heading_rad)
 
     for i, node in enumerate(route):
         p = nodes_xy[node]
@@ -552,11 +560,14 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(p, True, free_m)
             continue
         if i > 0:
-            add(_towards(p, nodes_xy[route[i - 1]]), False, NARROW_NODE_TOLERANCE_M)
+            q = _towards(p, nodes_xy[route[i - 1]])
+            facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
+            add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
         add(p, False, NARROW_NODE_TOLERANCE_M)
         if i < len(route) - 1:
             add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
-    return np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near)
+    return (np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near),
+            np.array(heading, dtype=np.float64))
 
 
 def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray) -> list[int]:

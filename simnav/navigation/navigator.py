@@ -66,6 +66,8 @@ class NavigatorConfig:
         backward_priority: score factor of backward PTGs (they are a last resort).
         target_allowed_distance_m: the final target counts as reached within this distance, m.
         waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
+        waypoint_heading_tolerance_rad: a waypoint given a heading counts as passed only once the robot faces that
+            heading within this; until then it turns in place there (when its turning circle is free), rad.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
@@ -115,6 +117,7 @@ class NavigatorConfig:
     backward_priority: float = 0.5
     target_allowed_distance_m: float = 0.3
     waypoint_allowed_distance_m: float = 1.0
+    waypoint_heading_tolerance_rad: float = math.radians(20.0)
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
     slow_down_distance_m: float = 0.6
@@ -149,6 +152,7 @@ class NavigatorConfig:
             (0 <= self.secure_distance_start < self.secure_distance_end <= 1,
              "need 0 <= secure_distance_start < secure_distance_end <= 1"),
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
+            (0 < self.waypoint_heading_tolerance_rad <= math.pi, "waypoint_heading_tolerance_rad must be in (0, pi]"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
@@ -242,7 +246,9 @@ class ReactiveNavigator3D:
         """Forget targets, memory and the previous command."""
         self._waypoints = np.zeros((0, 2))
         self._allow_skip, self._allowed_m = np.zeros(0, dtype=bool), np.zeros(0)
+        self._headings = np.zeros(0)
         self._target = 0
+        self._aligning = False  # the current waypoint is reached but not yet faced at its heading
         self._last_cmd = (0.0, 0.0)
         self._last_stamp_s: float | None = None
         self._best_distance = math.inf
@@ -260,7 +266,7 @@ class ReactiveNavigator3D:
             self._memory.reset()
 
     def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
-                      allowed_distance_m: np.ndarray | None = None) -> None:
+                      allowed_distance_m: np.ndarray | None = None, headings_rad: np.ndarray | None = None) -> None:
         """Follow waypoints in order without stopping; the last one is the goal.
 
         Args:
@@ -269,6 +275,10 @@ class ReactiveNavigator3D:
                 (default all True); a waypoint in a doorway is best passed through, not skipped.
             allowed_distance_m: (W,) distance within which each intermediate waypoint counts as passed, m
                 (default ``waypoint_allowed_distance_m``; the goal always uses ``target_allowed_distance_m``).
+            headings_rad: (W,) heading at which to pass each waypoint, in the fixed frame, rad; NaN where any will
+                do (the default). Such a waypoint is passed once the robot is within its allowed distance and faces
+                the heading within ``waypoint_heading_tolerance_rad``: it turns in place there (e.g. to line up
+                with a doorway before driving through it).
         """
         wp = np.asarray(waypoints_xy, dtype=np.float64).reshape(-1, 2)
         if len(wp) == 0 or not np.isfinite(wp).all():
@@ -276,10 +286,13 @@ class ReactiveNavigator3D:
         skip = np.ones(len(wp), dtype=bool) if allow_skip is None else np.asarray(allow_skip, dtype=bool)
         near = (np.full(len(wp), self.config.waypoint_allowed_distance_m) if allowed_distance_m is None
                 else np.asarray(allowed_distance_m, dtype=np.float64))
-        if skip.shape != (len(wp),) or near.shape != (len(wp),):
-            raise ValueError(f"allow_skip and allowed_distance_m must have shape ({len(wp)},)")
+        heading = (np.full(len(wp), np.nan) if headings_rad is None
+                   else np.asarray(headings_rad, dtype=np.float64).copy())
+        if skip.shape != (len(wp),) or near.shape != (len(wp),) or heading.shape != (len(wp),):
+            raise ValueError(f"allow_skip, allowed_distance_m and headings_rad must have shape ({len(wp)},)")
         near[-1] = self.config.target_allowed_distance_m
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
+        self._headings, self._aligning = heading, False
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = None
         self._turning, self._turn_end = False, None
@@ -333,6 +346,16 @@ class ReactiveNavigator3D:
             if len(virtual_xy):
                 xy, ptr = merge_bands(xy, ptr, virtual_xy, virtual_ptr)
         band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
+        # A waypoint reached but not faced at its heading: turn in place to it (pass it if there is no room)
+        if self._aligning:
+            w = self._alignment_turn(T_odom_base, xy, ptr)
+            if w != 0.0:
+                w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
+                return self._output(0.0, w, dt, t0, "turning", self._target)
+            self._pass_waypoint()
+            self._advance_waypoints(T_odom_base)
+            if self.goal_reached:
+                return self._output(0.0, 0.0, dt, t0, "reached")
         # TP-NavLimits per PTG: minimum over the bands (eq. 6.4); the bands' cells are found once for all PTGs
         limits = self._spaces[0].tp_limits_all(self._spaces, xy, ptr)
         target_index = self._reachable_target(T_odom_base, limits)
@@ -375,13 +398,34 @@ class ReactiveNavigator3D:
 
     # ------------------------------------------------------------------------------------------- waypoints
     def _advance_waypoints(self, T_odom_base: np.ndarray) -> None:
-        """Pass waypoints within their allowed distance; the goal needs ``target_allowed_distance_m``."""
+        """Pass waypoints within their allowed distance (and faced at their heading, if they have one; else
+        ``_aligning`` is set); the goal needs ``target_allowed_distance_m``."""
         xy = T_odom_base[:2, 2]
+        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
+        self._aligning = False
         while self._target < len(self._waypoints):
             if np.linalg.norm(self._waypoints[self._target] - xy) > self._allowed_m[self._target]:
                 break
-            self._target += 1
-            self._best_distance, self._best_distance_stamp_s = math.inf, None
+            heading = self._headings[self._target]
+            if np.isfinite(heading) and abs(se2.wrap_angle(heading - yaw)) > \
+                    self.config.waypoint_heading_tolerance_rad:
+                self._aligning = True
+                break
+            self._pass_waypoint()
+
+    def _pass_waypoint(self) -> None:
+        self._target += 1
+        self._aligning = False
+        self._best_distance, self._best_distance_stamp_s = math.inf, None
+
+    def _alignment_turn(self, T_odom_base: np.ndarray, xy: np.ndarray, ptr: np.ndarray) -> float:
+        """Yaw rate (rad/s) that turns the robot towards the current waypoint's heading, 0 when an obstacle of
+        some band lies within that band's turning circle."""
+        if len(points_near(xy, ptr, 0.0, 0.0, self._turn_radii_m)[0]):
+            return 0.0
+        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
+        error = se2.wrap_angle(float(self._headings[self._target]) - yaw)
+        return math.copysign(self.max_w_rad_s, error)
 
     def _reachable_target(self, T_odom_base: np.ndarray, limits: list[np.ndarray]) -> int:
         """The furthest waypoint ahead within the horizon that some PTG reaches collision-free, else the current.

@@ -158,20 +158,26 @@ def test_observers_see_every_step_and_the_robot_factory_drives_the_mission():
 
 
 def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
-    from simnav.mission.mission import DOOR_APPROACH_M, NARROW_NODE_TOLERANCE_M, route_waypoints
+    from simnav.mission.mission import (DOOR_APPROACH_M, DOOR_APPROACH_TOLERANCE_M, NARROW_NODE_TOLERANCE_M,
+                                        route_waypoints)
 
     nodes = np.array([[0.0, 0.0], [3.0, -2.0], [3.0, 0.0], [3.0, 2.0], [3.0, 2.5]])  # node 2: a doorway
     narrow = np.array([False, False, True, False, False])
-    xy, skip, near = route_waypoints(nodes, [0, 1, 2, 3, 4], narrow, 1.0)
+    xy, skip, near, heading = route_waypoints(nodes, [0, 1, 2, 3, 4], narrow, 1.0)
     np.testing.assert_allclose(xy, [[0, 0], [3, -2], [3, -DOOR_APPROACH_M], [3, 0], [3, DOOR_APPROACH_M], [3, 2],
                                     [3, 2.5]])
     assert skip.tolist() == [True, True, False, False, True, True, True]
-    assert near.tolist() == [1.0, 1.0] + [NARROW_NODE_TOLERANCE_M] * 3 + [1.0, 1.0]
+    assert near.tolist() == [1.0, 1.0, DOOR_APPROACH_TOLERANCE_M] + [NARROW_NODE_TOLERANCE_M] * 2 + [1.0, 1.0]
+    # the approach waypoint is passed facing the doorway (+y); the others at any heading
+    np.testing.assert_allclose(heading[2], np.pi / 2)
+    assert np.isnan(np.delete(heading, 2)).all()
     # at most half way to a close neighbour; a route starting in the doorway has no approach before it
-    xy, skip, _ = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
+    xy, skip, _, heading = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
     np.testing.assert_allclose(xy, [[3, 0], [3, DOOR_APPROACH_M], [3, 2], [3, 2.5]])
-    xy, _, _ = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
+    assert np.isnan(heading).all()
+    xy, _, _, heading = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
     np.testing.assert_allclose(xy, [[3, 2.5], [3, 2.25], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])
+    np.testing.assert_allclose(heading[1], -np.pi / 2)
 
 
 def test_an_intervention_sets_the_robot_down_past_doorways():

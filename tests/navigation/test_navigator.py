@@ -244,6 +244,40 @@ def test_waypoints_are_passed_without_stopping(cache_dir) -> None:
     assert min(speeds[20:-20]) > 0.2 * V_MAX   # never stops at the intermediate waypoints
 
 
+def test_a_waypoint_with_a_heading_is_passed_facing_it_then_the_doorway_behind_it(cache_dir) -> None:
+    # a wall at y = 1.1 with a 1 m doorway at x = 2; the approach waypoint lies 0.6 m before it, heading +y
+    obstacles = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]))
+    T, dt, passed_at, states = np.eye(3), 0.05, None, []
+    for k in range(1200):
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), obstacles[:, :2]), obstacles[:, 2]])
+        cmd = nav.step(k * dt, T, pts)
+        states.append(cmd.state)
+        if passed_at is None and cmd.target_index >= 1:
+            passed_at = T.copy()
+        if cmd.state == "reached":
+            break
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    assert cmd.state == "reached"
+    assert "turning" in states
+    assert np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) <= 0.15
+    yaw = math.atan2(passed_at[1, 0], passed_at[0, 0])
+    assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
+
+
+def test_a_waypoint_heading_is_given_up_without_room_to_turn(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[0.0, 0.0], [3.0, 0.0]]), headings_rad=np.array([np.pi, np.nan]))
+    beside = np.array([[0.0, 0.45, 0.2]])  # inside the turning circle, clear of the path ahead
+    cmd = nav.step(0.0, np.eye(3), beside)
+    assert cmd.state == "navigating" and cmd.target_index == 1
+    nav.set_waypoints(np.array([[0.0, 0.0], [3.0, 0.0]]), headings_rad=np.array([np.pi, np.nan]))
+    cmd = nav.step(0.0, np.eye(3), np.zeros((0, 3)))
+    assert cmd.state == "turning" and cmd.target_index == 0 and cmd.v_m_s == 0.0
+
+
 def test_stuck_is_reported_after_the_timeout(cache_dir) -> None:
     nav = make_nav(cache_dir, stuck_timeout_s=2.0)
     obstacles = wall(0.6, -30.0, 0.6, 30.0)
@@ -258,6 +292,8 @@ def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
     nav = make_nav(cache_dir)
     with pytest.raises(ValueError, match="waypoints"):
         nav.set_waypoints(np.array([[np.nan, 0.0]]))
+    with pytest.raises(ValueError, match="headings_rad"):
+        nav.set_waypoints(np.array([[1.0, 0.0]]), headings_rad=np.zeros(2))
 
 
 
