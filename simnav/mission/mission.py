@@ -58,6 +58,9 @@ NARROW_NODE_CLEARANCE_M = 0.75
 NARROW_NODE_TOLERANCE_M = 0.3
 """... within this distance, m."""
 
+SET_DOWN_CLEARANCE_M = 0.3
+"""An intervention sets the robot down at a node where it stands at least this far from every person and robot, m."""
+
 DOOR_APPROACH_TOLERANCE_M = 0.15
 """The approach waypoint before a narrow node is passed within this distance, facing the narrow node (within the
 navigator's ``waypoint_heading_tolerance_rad``; it turns in place there): a robot that cut the corner into a doorway
@@ -352,12 +355,19 @@ class _MissionRunner:
                 row.path_length_ratio = row.distance_m / row.shortest_m
 
     def _intervene(self, row, route: list[int]) -> list[int]:
-        """Stuck: move the robot to the next roadmap node of its route that is not in a doorway and go on (counted as
-        an intervention); a robot set down in a doorway, facing along the route, can touch its jambs."""
+        """Stuck: move the robot to the next roadmap node of its route that is not in a doorway and that nobody
+        stands on, and go on (counted as an intervention); a robot set down in a doorway, facing along the route,
+        can touch its jambs, one set down on people touches them. When only the goal is left and someone stands on
+        it, the robot is set down at the free node nearest to it and goes on from there."""
         graph = self.sim.roadmap
         xy = self._true_pose()[:2, 2]
         closest = int(np.argmin(np.linalg.norm(graph.nodes_xy[route] - xy, axis=1)))
-        remaining = resume_route(route, closest, self._narrow)
+        taken = self._taken_nodes()
+        remaining = resume_route(route, closest, self._narrow, taken)
+        free = np.nonzero(~self._narrow & ~taken)[0]
+        if taken[remaining[0]] and len(free):
+            near = free[np.argmin(np.linalg.norm(graph.nodes_xy[free] - graph.nodes_xy[remaining[0]], axis=1))]
+            remaining = graph.shortest_path(int(near), route[-1])
         node = remaining[0]
         nxt = remaining[1] if len(remaining) > 1 else node
         heading = graph.nodes_xy[nxt] - graph.nodes_xy[node]
@@ -374,6 +384,17 @@ class _MissionRunner:
         self._settle_steps = 10
         self._follow(remaining)
         return remaining
+
+    def _taken_nodes(self) -> np.ndarray:
+        """(N,) roadmap nodes where the robot, set down there, would stand within ``SET_DOWN_CLEARANCE_M`` of a
+        person or another robot."""
+        nodes = self.sim.roadmap.nodes_xy
+        taken = np.zeros(len(nodes), dtype=bool)
+        for agents in (self.sim.crowd, self.sim.wanderers):
+            if agents.count:
+                gap = np.linalg.norm(nodes[:, None, :] - agents.positions_xy[None, :, :], axis=2)
+                taken |= np.any(gap < self._circumradius_m + agents.radius_m + SET_DOWN_CLEARANCE_M, axis=1)
+        return taken
 
     # ----------------------------------------------------------------------------------------- measurements
     def _true_pose(self) -> np.ndarray:
@@ -570,17 +591,20 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             np.array(heading, dtype=np.float64))
 
 
-def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray) -> list[int]:
-    """The rest of ``route`` after its node at position ``closest``, from the first later node that is not narrow
-    (or the goal): where an intervention sets the robot down.
+def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray,
+                 taken: np.ndarray | None = None) -> list[int]:
+    """The rest of ``route`` after its node at position ``closest``, from the first later node that is neither
+    narrow nor taken (or the goal): where an intervention sets the robot down.
 
     Args:
         route: node indices in order.
         closest: position in ``route`` of the node the robot is closest to.
         narrow: (N,) which nodes are narrow (doorways).
+        taken: (N,) which nodes someone stands on (default none).
     """
+    unfit = narrow if taken is None else narrow | taken
     start = min(closest + 1, len(route) - 1)
-    while start < len(route) - 1 and narrow[route[start]]:
+    while start < len(route) - 1 and unfit[route[start]]:
         start += 1
     return list(route[start:])
 

@@ -362,12 +362,12 @@ class ReactiveNavigator3D:
         T_base_odom = se2.inverse(T_odom_base)
         target_base = se2.transform_points(T_base_odom, self._waypoints[target_index][None])[0]
         self._update_stuck(stamp_s, T_odom_base)
-        # Blocked goal: only points within a band's radius of the goal can touch the robot standing there
+        # Blocked goal: only points within a band's radius of the spot to stand on can touch the robot there
         goal_xy = self._waypoints[-1]
         if float(np.linalg.norm(goal_xy - T_odom_base[:2, 2])) <= cfg.blocked_check_m:
-            goal_base = se2.transform_points(T_base_odom, goal_xy[None])[0]
+            spot_base = se2.transform_points(T_base_odom, self._goal_spot(T_odom_base)[None])[0]
             radius = np.full(n_bands, self._robot_radius_m + 1e-6)
-            near_xy, near_ptr = points_near(xy, ptr, float(goal_base[0]), float(goal_base[1]), radius)
+            near_xy, near_ptr = points_near(xy, ptr, float(spot_base[0]), float(spot_base[1]), radius)
             near_band_xy = [near_xy[near_ptr[b]:near_ptr[b + 1]] for b in range(n_bands)]
         else:
             near_band_xy = band_xy  # not looked at: the goal is too far for the check
@@ -449,8 +449,19 @@ class ReactiveNavigator3D:
             self._target = int(ahead[np.nonzero(reachable)[0][-1]])
         return self._target
 
+    def _goal_spot(self, T_odom_base: np.ndarray) -> np.ndarray:
+        """(2,) the nearest place to stand on that reaches the goal: the goal pulled towards the robot by
+        ``target_allowed_distance_m`` (fixed frame, m)."""
+        goal = self._waypoints[-1]
+        offset = T_odom_base[:2, 2] - goal
+        distance = float(np.linalg.norm(offset))
+        if distance <= self.config.target_allowed_distance_m:
+            return T_odom_base[:2, 2].copy()
+        return goal + offset * (self.config.target_allowed_distance_m / distance)
+
     def _goal_is_blocked(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> bool:
-        """Whether the robot, standing on the goal (facing away from here), would overlap an obstacle."""
+        """Whether the robot would overlap an obstacle standing on :meth:`_goal_spot`, facing the goal (someone
+        stands on the goal: the robot stops in front of it instead of pressing on)."""
         from simnav.navigation.collision_grid import points_in_polygon
 
         goal = self._waypoints[-1]
@@ -458,9 +469,10 @@ class ReactiveNavigator3D:
         if float(np.linalg.norm(offset)) > self.config.blocked_check_m:
             self._goal_blocked_steps = 0
             return False
-        T_goal = se2.inverse(T_odom_base) @ se2.from_xy_yaw(goal[0], goal[1], math.atan2(offset[1], offset[0]))
-        T_goal_base = se2.inverse(T_goal)
-        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_goal_base, pts), band.polygon))
+        spot = self._goal_spot(T_odom_base)
+        T_spot = se2.inverse(T_odom_base) @ se2.from_xy_yaw(spot[0], spot[1], math.atan2(offset[1], offset[0]))
+        T_spot_base = se2.inverse(T_spot)
+        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_spot_base, pts), band.polygon))
                   for band, pts in zip(self.bands, band_xy, strict=True))
         self._goal_blocked_steps = self._goal_blocked_steps + 1 if hit else 0
         return self._goal_blocked_steps >= self.config.blocked_confirm_steps

@@ -158,8 +158,12 @@ def test_observers_see_every_step_and_the_robot_factory_drives_the_mission():
 
 
 def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
-    from simnav.mission.mission import (DOOR_APPROACH_M, DOOR_APPROACH_TOLERANCE_M, NARROW_NODE_TOLERANCE_M,
-                                        route_waypoints)
+    from simnav.mission.mission import (
+        DOOR_APPROACH_M,
+        DOOR_APPROACH_TOLERANCE_M,
+        NARROW_NODE_TOLERANCE_M,
+        route_waypoints,
+    )
 
     nodes = np.array([[0.0, 0.0], [3.0, -2.0], [3.0, 0.0], [3.0, 2.0], [3.0, 2.5]])  # node 2: a doorway
     narrow = np.array([False, False, True, False, False])
@@ -188,3 +192,26 @@ def test_an_intervention_sets_the_robot_down_past_doorways():
     assert resume_route(route, 1, narrow) == [7, 8]   # not into the doorway
     assert resume_route(route, 5, narrow) == [8]      # at the goal: stays there
     assert resume_route([1, 5, 6], 0, narrow) == [6]  # nothing but doorways left: the goal
+    taken = np.zeros(10, dtype=bool)
+    taken[7] = True  # someone stands there
+    assert resume_route(route, 1, narrow, taken) == [8]
+    assert resume_route(route, 0, narrow, taken) == [2, 5, 6, 7, 8]
+
+
+def test_an_intervention_does_not_set_the_robot_down_on_people():
+    from simnav.mission.mission import SET_DOWN_CLEARANCE_M, _MissionRunner
+
+    settings = MissionSettings(targets=1, seed=3)
+    runner = _MissionRunner(load_world("office"), mission_robot(load_robot("giraff"), settings), settings, None)
+    route = runner._new_target()
+    nodes = runner.sim.roadmap.nodes_xy
+    # people stand on every node of the route after the first, the goal included
+    crowd = runner.sim.crowd
+    for i, node in enumerate(route[1:crowd.count + 1]):
+        crowd._pos[i] = nodes[node]
+    remaining = runner._intervene(runner.report.targets[-1], route)
+    xy = runner._true_pose()[:2, 2]
+    gap = np.linalg.norm(crowd.positions_xy - xy, axis=1).min()
+    assert gap >= runner._circumradius_m + crowd.radius_m + SET_DOWN_CLEARANCE_M - 1e-9
+    assert remaining[-1] == route[-1]  # still on its way to the same goal
+    assert runner.report.interventions == 1

@@ -85,6 +85,16 @@ def test_a_wall_across_the_way_stops_the_robot_before_it(cache_dir) -> None:
     assert np.max(np.abs(poses[:, 1, 2])) < 0.3       # it came at it and stopped, no search along the wall
 
 
+def test_a_goal_is_reached_when_only_its_far_part_is_taken(cache_dir) -> None:
+    # someone stands just past the goal: the robot would touch them on the goal itself, not 0.3 m before it
+    nav = make_nav(cache_dir)
+    person = np.array([[3.25, 0.0, 0.2]])
+    poses, commands = drive(nav, person, (3.0, 0.0), 20.0)
+    assert commands[-1].state == "reached"
+    assert "blocked" not in {c.state for c in commands}
+    assert footprint_distance(poses, person[:, :2], BASE.polygon) > 0.02
+
+
 def test_a_goal_beyond_a_long_wall_is_searched_for_without_touching_the_wall(cache_dir) -> None:
     nav = make_nav(cache_dir)
     obstacles = wall(2.0, -30.0, 2.0, 30.0)
