@@ -236,8 +236,9 @@ class ReactiveNavigator3D:
         self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
         self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
-        self._turn_radii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1])))
-                                       + cfg.footprint_margin_m for b in self.bands])
+        circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
+        self._turn_radii_m = circumradii_m + cfg.footprint_margin_m
+        self._tight_turn_radii_m = circumradii_m + min(cfg.footprint_margin_m, _TIGHT_TURN_MARGIN_M)
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
         self.reset()
 
@@ -541,7 +542,8 @@ class ReactiveNavigator3D:
         (once turning: beyond ``turn_in_place_stop_rad``), no obstacle of any band is within the band's turning
         circle (its section's circumradius plus the footprint margin) and, to start, the last turn in place is
         ``turn_in_place_retry_s`` or ``turn_in_place_retry_m`` away, unless no path moves (``stalled``): turning
-        beats waiting."""
+        beats waiting, and then the turning circle needs only ``_TIGHT_TURN_MARGIN_M`` of margin (a robot that
+        stopped 4 cm from an open door leaf, every path blocked, waited there for ever)."""
         cfg = self.config
         x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
         if not cfg.turn_in_place:
@@ -553,8 +555,8 @@ class ReactiveNavigator3D:
                 return False
         bearing = abs(math.atan2(float(target_base[1]), float(target_base[0])))
         threshold = cfg.turn_in_place_stop_rad if self._turning else cfg.turn_in_place_start_rad
-        turning = (not direct and bearing > threshold
-                   and len(points_near(xy, ptr, 0.0, 0.0, self._turn_radii_m)[0]) == 0)
+        radii = self._tight_turn_radii_m if stalled else self._turn_radii_m
+        turning = not direct and bearing > threshold and len(points_near(xy, ptr, 0.0, 0.0, radii)[0]) == 0
         if self._turning and not turning:
             self._turn_end = (stamp_s, x, y)
         self._turning = turning
@@ -696,6 +698,7 @@ class ReactiveNavigator3D:
 
 _ND = NDConfig()
 _SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
+_TIGHT_TURN_MARGIN_M = 0.02  # clearance of the turning circle when turning in place is all the robot can do
 
 
 def _target_path_speed(lim: np.ndarray, k_t: int) -> float:

@@ -288,6 +288,22 @@ def test_a_waypoint_heading_is_given_up_without_room_to_turn(cache_dir) -> None:
     assert cmd.state == "turning" and cmd.target_index == 0 and cmd.v_m_s == 0.0
 
 
+def test_with_every_path_blocked_the_robot_turns_in_place_if_it_just_fits(cache_dir) -> None:
+    # a cup of points around the front half, just outside the base's circumcircle (0.42 m) but inside it plus the
+    # 5 cm margin: no path moves, nothing to back along; the target lies behind to the right
+    angles = np.radians(np.linspace(-100.0, 100.0, 81))
+    reach = math.hypot(0.3, 0.3)
+
+    def first_state(radius_m: float) -> str:
+        nav = make_nav(cache_dir)
+        nav.set_target((-0.5, -2.0))
+        cup = np.column_stack([radius_m * np.cos(angles), radius_m * np.sin(angles), np.full(len(angles), 0.2)])
+        return nav.step(0.0, np.eye(3), cup).state
+
+    assert first_state(reach + 0.035) == "turning"   # within the margin, but the robot fits
+    assert first_state(reach + 0.01) == "waiting"    # too tight even to turn
+
+
 def test_stuck_is_reported_after_the_timeout(cache_dir) -> None:
     nav = make_nav(cache_dir, stuck_timeout_s=2.0)
     obstacles = wall(0.6, -30.0, 0.6, 30.0)
@@ -346,8 +362,8 @@ def test_a_target_beside_the_robot_in_open_space_is_reached_on_a_path_not_by_tur
 
 
 def test_no_turning_in_place_with_an_obstacle_inside_the_turning_circle(cache_dir) -> None:
-    # the same wall, and a post beside the robot's rear corner: turning would sweep into it
-    obstacles = np.vstack([wall(0.5, -4.0, 0.5, 1.0), wall(-2.0, 1.0, 0.5, 1.0), [[-0.25, -0.38, 0.2]]])
+    # the same wall, and a post beside the robot's rear corner: turning would sweep within 6 mm of it
+    obstacles = np.vstack([wall(0.5, -4.0, 0.5, 1.0), wall(-2.0, 1.0, 0.5, 1.0), [[-0.25, -0.35, 0.2]]])
     nav = make_nav(cache_dir)
     poses, commands = drive(nav, obstacles, (0.0, -2.0), 5.0)
     assert not any(c.state == "turning" for c in commands)
