@@ -82,6 +82,8 @@ class NavigatorConfig:
         recovery_speed_m_s: backward speed while recovering, m/s.
         recovery_min_s: once backing away, keep at it at least this long before moving forward again, s.
         recovery_duration_s: back away at most this long, then stop and wait, s.
+        recovery_retry_s: after waiting this long, back away again (someone who waits to pass the robot, in a
+            doorway, may need more room than one backing gives), s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
         recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
             many seconds: the sensors see little behind the robot, the path it came along was free, s.
@@ -129,6 +131,7 @@ class NavigatorConfig:
     recovery_speed_m_s: float = 0.08
     recovery_min_s: float = 1.0
     recovery_duration_s: float = 3.0
+    recovery_retry_s: float = 8.0
     recovery_clearance_m: float = 0.3
     recovery_trail_s: float = 20.0
     turn_in_place: bool = True
@@ -639,9 +642,11 @@ class ReactiveNavigator3D:
     # --------------------------------------------------------------------------------------------- recovery
     def _recover(self, stamp_s: float, dt: float, t0: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray],
                  target_index: int) -> NavCommand:
-        """Every path blocked: back away slowly while the space behind is free, then stop and wait (§6.C.6)."""
+        """Every path blocked: back away slowly while the space behind is free, then stop and wait (§6.C.6); after
+        ``recovery_retry_s`` of waiting, back away again."""
         cfg = self.config
-        if self._blocked_since_s is None:
+        if self._blocked_since_s is None or \
+                stamp_s - self._blocked_since_s >= cfg.recovery_duration_s + cfg.recovery_retry_s:
             self._blocked_since_s = stamp_s
         if (stamp_s - self._blocked_since_s < cfg.recovery_duration_s and self._behind_is_free(band_xy)
                 and self._behind_is_trail(T_odom_base)):

@@ -122,6 +122,20 @@ def test_an_obstacle_inside_the_footprint_makes_the_robot_back_away_along_its_pa
     assert cmd.v_m_s < 0.0
 
 
+def test_after_waiting_a_while_the_robot_backs_away_again(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    cmd = _drive_in_then_blocked(nav, 0.0)
+    assert cmd.state == "recovering"
+    T, states = se2.from_xy_yaw(0.6, 0.0, 0.0), []
+    for k in range(1, 301):  # 15 s more, still boxed in (the robot is held in place)
+        states.append(nav.step(1.5 + 0.05 * k, T, np.array([[0.2, 0.0, 0.2]])).state)
+    first_wait = states.index("waiting")
+    assert "recovering" in states[first_wait:]
+    again = states.index("recovering", first_wait)
+    cfg = nav.config
+    assert (again - first_wait) * 0.05 == pytest.approx(cfg.recovery_retry_s, abs=0.5)
+
+
 def test_the_robot_does_not_back_into_space_it_has_not_driven_through(cache_dir) -> None:
     # after turning 90 degrees the space behind was never driven through (nor seen: lidars look ahead)
     cmd = _drive_in_then_blocked(make_nav(cache_dir), math.pi / 2)
