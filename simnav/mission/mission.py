@@ -555,7 +555,7 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
     previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
     far after them (towards the next node, skippable); other nodes may be cut once a later waypoint is reachable and
-    count as passed within ``free_m``.
+    count as passed within ``free_m`` (the one before a narrow node within ``NARROW_NODE_TOLERANCE_M``).
 
     Args:
         nodes_xy: (N, 2) roadmap nodes, m.
@@ -581,6 +581,9 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(p, True, free_m)
             continue
         if i > 0:
+            # the node before counts as passed only close by: from 1 m away, cutting towards the approach waypoint,
+            # a robot came to the wrong side of an open door leaf, with no path left around it
+            near[-1] = min(near[-1], NARROW_NODE_TOLERANCE_M)
             q = _towards(p, nodes_xy[route[i - 1]])
             facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
