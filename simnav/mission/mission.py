@@ -581,8 +581,8 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(p, True, free_m)
             continue
         if i > 0:
-            # the node before counts as passed only close by: from 1 m away, cutting towards the approach waypoint,
-            # a robot came to the wrong side of an open door leaf, with no path left around it
+            # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach
+            # waypoint, a robot can come to the wrong side of an open door leaf, with no path left around it
             near[-1] = min(near[-1], NARROW_NODE_TOLERANCE_M)
             q = _towards(p, nodes_xy[route[i - 1]])
             facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
