@@ -29,6 +29,7 @@ from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
 from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
+from simnav.sim.native import MJ_STEP, ramp_steps
 from simnav.sim.scene import build_scene
 from simnav.world.footprint import obstacle_segments
 from simnav.world.mjcf import WANDERER_RADIUS_M
@@ -76,6 +77,11 @@ class Simulator:
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
         self._clearance = ContactClearance(self.model, self.index.robot_body, drive.max_v_m_s)
+        # the motor ramp's stretches in compiled code (see simnav.sim.native): the model's and data's addresses,
+        # and room for the end step and base pose of each stretch of a control period
+        self._native_step = (self.model._address, self.data._address) if MJ_STEP else ()
+        stretches = self._substeps // self._motor_substeps + 1
+        self._ramp_out = (np.empty(stretches, dtype=np.int64), np.empty((stretches, 3)))
         flags = self.model.opt.disableflags
         self._contact_flags = (flags, flags | mujoco.mjtDisableBit.mjDSBL_CONTACT)  # (detecting, skipping)
         self.sensors = self._make_sensors()
@@ -320,6 +326,14 @@ class Simulator:
         limit = min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
+        if self._native_step:  # the same stretches in one compiled call
+            steps, poses = self._ramp_out
+            k, v, w, count = ramp_steps(MJ_STEP, self._native_step[0], self._native_step[1], k, limit, motor, v, w,
+                                        v_target, w_target, dv_max, dw_max, self._ctrl, self._base_qpos, steps, poses)
+            if count:
+                self._history.extend(zip(steps[:count].tolist(), *poses[:count].T.tolist()))
+            self._v_m_s, self._w_rad_s, self._step_count = v, w, k
+            return k
         ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
         while k % motor == 0 and k + motor <= limit and (v_target != v or w_target != w):
             v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
