@@ -129,6 +129,12 @@ def _shared_grid(walls: bytes, reach_m: float, cell_m: float) -> SegmentGrid:
     return SegmentGrid(Segments(np.frombuffer(walls).reshape(-1, 2, 2)), reach_m, cell_m)
 
 
+def _is_rows(values: object, width: int) -> bool:
+    """Whether ``values`` is a C-contiguous float64 ndarray of shape (K, ``width``) (the kernels take it as is)."""
+    return (type(values) is np.ndarray and values.dtype == np.float64 and values.ndim == 2
+            and values.shape[1] == width and values.flags.c_contiguous)
+
+
 class Crowd:
     """Pedestrians walking between roadmap nodes (social force model, hard non-overlap constraints).
 
@@ -166,6 +172,8 @@ class Crowd:
         self._rules = (YIELD_SPEED_FACTOR, params.wall_look_ahead_m > 0.0, params.max_speed_factor, params.radius_m,
                        PROJECTION_SWEEPS, NEAR_SLACK_M, _TURNING, _BLOCKING, _STUCK)
         self._limits = (GOAL_REACHED_M, WAYPOINT_REACHED_M, params.radius_m, OCCUPIED_MARGIN_M)
+        self._circle_pad = np.array([0.0, 0.0, params.circle_clearance_m])  # added to the circles (read only)
+        self._circle_pad.flags.writeable = False
         self._init_grids()
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
         self._pos, start_nodes = self._spawn(int(count), keep)
@@ -256,9 +264,13 @@ class Crowd:
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
         self._time_s += dt_s
-        circ, circ_vel = circle_arrays(circles, circle_velocities)
-        if len(circ) and self._params.circle_clearance_m > 0:  # personal space around robots
-            circ = circ + np.array([0.0, 0.0, self._params.circle_clearance_m])
+        if (circle_velocities is not None and _is_rows(circles, 3) and _is_rows(circle_velocities, 2)
+                and len(circle_velocities) == len(circles)):
+            circ, circ_vel = circles, circle_velocities  # what circle_arrays returns for them
+        else:
+            circ, circ_vel = circle_arrays(circles, circle_velocities)
+        if len(circ) and self._circle_pad[2] > 0:  # personal space around robots
+            circ = circ + self._circle_pad
         self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
         events = self._move(dt_s, dyn, circ, circ_vel, circles is not None)
@@ -280,7 +292,10 @@ class Crowd:
         stays; :func:`~simnav.agents.kernels.crowd_move` fills it)."""
         if dynamic_segments is None:
             return self._no_segments
-        dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
+        dyn = dynamic_segments
+        if not (type(dyn) is np.ndarray and dyn.dtype == np.float64 and dyn.ndim == 3 and dyn.shape[1:] == (2, 2)
+                and dyn.flags.c_contiguous):
+            dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
         if len(dyn) and len(self._extended) != len(self._walls) + len(dyn):
             self._extended = self._walls.extended(dyn)
             self._extended_args = (*self._extended.arrays, len(self._walls))

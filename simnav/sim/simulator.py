@@ -155,6 +155,10 @@ class Simulator:
         self.wanderers = Wanderers(self.roadmap, self.wanderer_count, self._rng_wanderers,
                                    speed_m_s=agents.robot_speed_m_s, radius_m=WANDERER_RADIUS_M, keep_out=keep_out)
         self.doors = DoorLeaves(self.world.doors)
+        people, robots = self.crowd.count, 1 + self.wanderers.count
+        blockers = np.empty((robots + people, 3))
+        self._agent_rows = (people, robots, blockers, np.empty((people + robots, 2)), blockers[:robots],
+                            np.empty((robots, 2)))
         self._agent_time_s = 0.0
         self._posed_at: tuple[float, float] | None = None
         self._keep_agent_state()
@@ -367,11 +371,10 @@ class Simulator:
     def _step_agents(self) -> None:
         """Advance the people, the other robots and the doors by one agent period and pose them at the current time."""
         dt, crowd, wanderers, doors = self._agent_dt_s, self.crowd, self.wanderers, self.doors
-        people_count, robots = crowd.count, 1 + wanderers.count
         # blockers: circles of the robot and the other robots before this step, then of the people after it;
-        # nearby: the people and the robot, then the other robots after their step
-        blockers, nearby = np.empty((robots + people_count, 3)), np.empty((people_count + robots, 2))
-        circles, circle_vel = blockers[:robots], np.empty((robots, 2))
+        # nearby: the people and the robot, then the other robots after their step (buffers of this episode, which
+        # the agents read during their steps only)
+        people_count, robots, blockers, nearby, circles, circle_vel = self._agent_rows
         others_xy, others_vel = wanderers.motion_arrays()[:2]
         _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m, others_xy, others_vel,
                     WANDERER_RADIUS_M)
