@@ -1,14 +1,24 @@
-"""MuJoCo's ``mj_step`` called from compiled (Numba) code, for the stretches of the motor ramp.
+"""MuJoCo's ``mj_step`` called from compiled (Numba) code, for the stretches of the motor ramp, and a robot-only
+shadow model that runs most of them.
 
 While the motor controller ramps towards a command, the control changes every motor period (every physics step
 at the default 10 ms), so each stretch is one ``mj_step`` call. Made from Python, each costs the binding's call
-and the ramp's bookkeeping; :func:`ramp_steps` runs those stretches in one compiled call instead, calling
-``mj_step`` of the MuJoCo library that the ``mujoco`` package loaded through its C address. The controls are the
-same doubles (the ramp's arithmetic is the same), so the physics and the poses are identical to the bit.
+and the ramp's bookkeeping; :func:`ramp_steps` runs those stretches in one compiled call instead, calling the
+functions of the MuJoCo library that the ``mujoco`` package loaded through their C addresses. The controls are the
+same doubles (the ramp's arithmetic is the same).
 
-The address comes from that library file (found next to the ``mujoco`` package, opened again: the loader returns
+The shadow (:func:`robot_shadow`): while MuJoCo's collision detection is off, nothing but the robot's own tree
+enters its dynamics (the people, other robots and doors are mocap bodies, everything else is static and there are
+no constraints), yet each step of the scene also poses every mocap body and its geoms. A model of the robot
+alone, compiled from the same robot description and options, steps the same state to the same state, to the bit
+(checked when it is made, else there is no shadow), in about half the time. :func:`ramp_steps` runs all but the
+last stretch of a ramp in it, then copies its state (time, positions, velocities, warm start, controls) back and
+runs the last stretch in the scene, so that everything computed from the state (poses, forces, ...) is also what
+the scene's own steps would have left.
+
+The addresses come from the library file (found next to the ``mujoco`` package, opened again: the loader returns
 the library already in the process); :data:`MJ_STEP` is 0 where it is not found, and the caller then steps from
-Python. ``mj_step`` reports errors through MuJoCo's error callback, which the Python bindings turn into
+Python. These functions report errors through MuJoCo's error callback, which the Python bindings turn into
 exceptions: the compiled loop is used only where the caller has ruled them out (collision detection off, so no
 contact can fill the arena).
 """
@@ -25,33 +35,63 @@ from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
 
+STATE = int(mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART | mujoco.mjtState.mjSTATE_CTRL)
+"""The state a shadow takes over and hands back: time, positions, velocities, activations (and the other
+physics state), the warm start of the accelerations and the controls."""
+SELF_CHECKS = 8  # random states (of SELF_CHECK_STEPS steps each) a shadow must follow to the bit
+SELF_CHECK_STEPS = 12
 
-def _mj_step_address() -> int:
-    """Address of ``mj_step`` in the MuJoCo library of the ``mujoco`` package, or 0 if not found."""
+
+def _addresses(*names: str) -> tuple[int, ...]:
+    """Addresses of the named functions of the MuJoCo library of the ``mujoco`` package, or zeros if not found."""
     folder = os.path.dirname(mujoco.__file__)
-    for name in ("libmujoco.so*", "libmujoco*.dylib", "mujoco.dll"):
-        for path in sorted(glob.glob(os.path.join(folder, name))):
+    for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco.dll"):
+        for path in sorted(glob.glob(os.path.join(folder, pattern))):
             try:
-                return ctypes.cast(ctypes.CDLL(path).mj_step, ctypes.c_void_p).value or 0
+                lib = ctypes.CDLL(path)
+                return tuple(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value or 0 for name in names)
             except (OSError, AttributeError):
                 continue
-    return 0
+    return (0,) * len(names)
 
 
-MJ_STEP = _mj_step_address()
-"""Address of MuJoCo's ``void mj_step(const mjModel*, mjData*)``; 0 when unavailable."""
+MJ_STEP, MJ_GET_STATE, MJ_SET_STATE = _addresses("mj_step", "mj_getState", "mj_setState")
+"""Addresses of MuJoCo's ``mj_step(const mjModel*, mjData*)``, ``mj_getState(const mjModel*, const mjData*,
+mjtNum* state, int sig)`` and ``mj_setState(const mjModel*, mjData*, const mjtNum* state, int sig)``; 0 when
+unavailable."""
+NATIVE = MJ_STEP != 0 and MJ_GET_STATE != 0 and MJ_SET_STATE != 0
+"""Whether :func:`ramp_steps` can run (else the caller steps from Python)."""
+FUNCTIONS = np.array([MJ_STEP, MJ_GET_STATE, MJ_SET_STATE], dtype=np.int64)
 
 
 @intrinsic
 def _call_step(typingctx, fn, model, data):
     """Call the C function at address ``fn`` as ``void fn(void* model, void* data)`` (addresses as integers)."""
-    sig = types.void(types.intp, types.intp, types.intp)
+    sig = types.void(types.int64, types.int64, types.int64)
 
     def codegen(context, builder, signature, args):
         ptr = ir.IntType(8).as_pointer()
         fnty = ir.FunctionType(ir.VoidType(), [ptr, ptr])
         callee = builder.inttoptr(args[0], fnty.as_pointer())
         builder.call(callee, [builder.inttoptr(args[1], ptr), builder.inttoptr(args[2], ptr)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _call_state(typingctx, fn, model, data, state, spec):
+    """Call the C function at address ``fn`` as ``void fn(void* model, void* data, double* state, int spec)``
+    (``mj_getState``, ``mj_setState``; addresses as integers)."""
+    sig = types.void(types.int64, types.int64, types.int64, types.int64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        ptr = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.VoidType(), [ptr, ptr, ir.DoubleType().as_pointer(), ir.IntType(32)])
+        callee = builder.inttoptr(args[0], fnty.as_pointer())
+        builder.call(callee, [builder.inttoptr(args[1], ptr), builder.inttoptr(args[2], ptr),
+                              builder.inttoptr(args[3], ir.DoubleType().as_pointer()),
+                              builder.trunc(args[4], ir.IntType(32))])
         return context.get_dummy_value()
 
     return sig, codegen
@@ -65,29 +105,120 @@ def _ramped(x: float, target: float, limit: float) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def ramp_steps(step_fn: int, model: int, data: int, k: int, limit: int, motor: int, v: float, w: float,
-               v_target: float, w_target: float, dv_max: float, dw_max: float, ctrl: np.ndarray,
-               base_qpos: np.ndarray, steps_out: np.ndarray, poses_out: np.ndarray) -> tuple[int, float, float, int]:
-    """The motor ramp's stretches from physics step ``k``: while ``k`` is on a motor period, a whole period fits
-    before step ``limit`` and (v, w) has not reached the target, (v, w) moves towards (``v_target``,
-    ``w_target``) by at most (``dv_max``, ``dw_max``), goes to ``ctrl[0]``, ``ctrl[2]``, and ``motor`` physics
-    steps run (``mj_step`` at ``step_fn`` on the ``model`` and ``data`` addresses).
+def _hand_over(functions: np.ndarray, model_from: int, data_from: int, model_to: int, data_to: int,
+               state: np.ndarray) -> None:
+    """Copy the STATE of one data (of its model) to another through ``state`` (room for it)."""
+    _call_state(functions[1], model_from, data_from, state.ctypes.data, STATE)
+    _call_state(functions[2], model_to, data_to, state.ctypes.data, STATE)
 
-    After each stretch its end step and the (3,) ``base_qpos`` (x, y, yaw; a view of the data) are written to
-    ``steps_out`` (S,) and ``poses_out`` (S, 3); at most S stretches run.
+
+@njit(cache=True, error_model="numpy")
+def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, limit: int, motor: int, ramp: tuple,
+               steps_out: np.ndarray, poses_out: np.ndarray) -> tuple[int, float, float, int]:
+    """The motor ramp's stretches from physics step ``k``: while ``k`` is on a motor period, a whole period fits
+    before step ``limit`` and (v, w) has not reached the target, (v, w) moves towards the target by at most the
+    limits, goes to the controls (forward and yaw), and ``motor`` physics steps run.
+
+    Args:
+        functions: the addresses of ``mj_step``, ``mj_getState`` and ``mj_setState`` (:data:`FUNCTIONS`).
+        scene: (model address, data address, its (nu,) controls, its (3,) base x, y, yaw: views of the data).
+        shadow: the same of a robot-only shadow (:func:`robot_shadow`) and (S,) room for its STATE, or addresses
+            0 for none.
+        ramp: (v, w, target v, target w, largest change of v, of w per motor period).
+        steps_out, poses_out: (R,) and (R, 3) written: the end step of each stretch and the base pose (x, y, yaw)
+            after it; at most R stretches run.
 
     Returns:
         The step reached, the ramp's (v, w) and the number of stretches run.
     """
-    count = 0
-    while (count < steps_out.shape[0] and k % motor == 0 and k + motor <= limit
-           and (v_target != v or w_target != w)):
-        v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
-        ctrl[0], ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
-        for _ in range(motor):
-            _call_step(step_fn, model, data)
-        k += motor
-        steps_out[count] = k
-        poses_out[count, 0], poses_out[count, 1], poses_out[count, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
+    model, data, ctrl, base_qpos = scene
+    shadow_model, shadow_data, shadow_ctrl, shadow_qpos, state = shadow
+    v, w, v_target, w_target, dv_max, dw_max = ramp
+    # how many stretches run
+    count, kk, vv, ww = 0, k, v, w
+    while (count < steps_out.shape[0] and kk % motor == 0 and kk + motor <= limit
+           and (v_target != vv or w_target != ww)):
+        vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
+        kk += motor
         count += 1
+    # all but the last in the shadow (when there is one), the last in the scene
+    shadowed = count - 1 if shadow_model != 0 else 0
+    if shadowed > 0:
+        _hand_over(functions, model, data, shadow_model, shadow_data, state)
+    for i in range(count):
+        v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
+        if i < shadowed:
+            shadow_ctrl[0], shadow_ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
+            for _ in range(motor):
+                _call_step(functions[0], shadow_model, shadow_data)
+            poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = shadow_qpos[0], shadow_qpos[1], shadow_qpos[2]
+        else:
+            if i == shadowed and shadowed > 0:
+                _hand_over(functions, shadow_model, shadow_data, model, data, state)
+            ctrl[0], ctrl[2] = v, w
+            for _ in range(motor):
+                _call_step(functions[0], model, data)
+            poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
+        k += motor
+        steps_out[i] = k
     return k, v, w, count
+
+
+def robot_shadow(spec_of_robot, model: mujoco.MjModel, qpos_adr: np.ndarray, dof_adr: np.ndarray
+                 ) -> tuple[mujoco.MjModel, mujoco.MjData] | None:
+    """A model of the robot alone that steps like ``model`` (collision detection off), and its data, or None.
+
+    Args:
+        spec_of_robot: builds the robot alone: ``spec_of_robot() -> mujoco.MjSpec`` (with the scene's options).
+        model: the scene.
+        qpos_adr, dof_adr: (3,) addresses of the robot's x, y, yaw joints in the scene.
+
+    Returns:
+        None when the scene has state beyond the robot's joints (other joints, activations, ...), the states
+        differ in size, or the shadow fails to follow the scene to the bit from random states and controls.
+    """
+    if not NATIVE or model.nq != 3 or model.nv != 3 or not np.array_equal(qpos_adr, [0, 1, 2]) \
+            or not np.array_equal(dof_adr, [0, 1, 2]):
+        return None
+    spec = spec_of_robot()
+    for geom in list(spec.geoms):  # the shadow never collides
+        spec.delete(geom)
+    for light in list(spec.lights):
+        spec.delete(light)
+    shadow = spec.compile()
+    shadow.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    if mujoco.mj_stateSize(shadow, STATE) != mujoco.mj_stateSize(model, STATE) or shadow.nu != model.nu:
+        return None
+    shadow_data = mujoco.MjData(shadow)
+    return (shadow, shadow_data) if _follows(model, shadow, shadow_data) else None
+
+
+def _follows(model: mujoco.MjModel, shadow: mujoco.MjModel, shadow_data: mujoco.MjData) -> bool:
+    """Whether ``shadow`` steps random states of ``model`` (collision detection off) to the same states, to the
+    bit."""
+    rng = np.random.default_rng(0)
+    data = mujoco.MjData(model)
+    flags = model.opt.disableflags
+    model.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_CONTACT
+    size = mujoco.mj_stateSize(model, STATE)
+    state, after, shadow_after = np.empty(size), np.empty(size), np.empty(size)
+    try:
+        for _ in range(SELF_CHECKS):
+            mujoco.mj_resetData(model, data)
+            data.time = rng.uniform(0.0, 1000.0)
+            data.qpos[:] = rng.uniform(-20.0, 20.0, 3)
+            data.qvel[:] = rng.uniform(-2.0, 2.0, 3)
+            data.qacc_warmstart[:] = rng.uniform(-2.0, 2.0, 3)
+            mujoco.mj_getState(model, data, state, STATE)
+            mujoco.mj_setState(shadow, shadow_data, state, STATE)
+            for _ in range(SELF_CHECK_STEPS):
+                data.ctrl[:] = shadow_data.ctrl[:] = rng.uniform(-1.5, 1.5, model.nu) * [1.0, 0.0, 1.0][:model.nu]
+                mujoco.mj_step(model, data)
+                mujoco.mj_step(shadow, shadow_data)
+                mujoco.mj_getState(model, data, after, STATE)
+                mujoco.mj_getState(shadow, shadow_data, shadow_after, STATE)
+                if not (np.array_equal(after, shadow_after) and np.array_equal(data.qacc, shadow_data.qacc)):
+                    return False
+    finally:
+        model.opt.disableflags = flags
+    return True

@@ -29,8 +29,8 @@ from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
 from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
-from simnav.sim.native import MJ_STEP, ramp_steps
-from simnav.sim.scene import build_scene
+from simnav.sim.native import FUNCTIONS, NATIVE, STATE, ramp_steps, robot_shadow
+from simnav.sim.scene import build_scene, robot_alone
 from simnav.world.footprint import obstacle_segments
 from simnav.world.mjcf import WANDERER_RADIUS_M
 from simnav.world.schema import WorldSpec
@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 _EPS_S = 1e-9
 _NEVER = 2**62  # a physics step never reached
 MOTOR_PERIOD_S = 0.01  # the motor controller applies its acceleration ramp at 100 Hz
+_NO_SHADOW = (0, 0, np.zeros(3), np.zeros(3), np.zeros(1))  # ramp_steps' shadow argument without one
 
 
 class Simulator:
@@ -77,9 +78,16 @@ class Simulator:
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
         self._clearance = ContactClearance(self.model, self.index.robot_body, drive.max_v_m_s)
-        # the motor ramp's stretches in compiled code (see simnav.sim.native): the model's and data's addresses,
-        # and room for the end step and base pose of each stretch of a control period
-        self._native_step = (self.model._address, self.data._address) if MJ_STEP else ()
+        # the motor ramp's stretches in compiled code, most of them in a robot-only shadow (see simnav.sim.native):
+        # the scene's and the shadow's addresses and views, and room for the end step and base pose of each
+        # stretch of a control period
+        self._native_scene = (self.model._address, self.data._address, self._ctrl, self._base_qpos) if NATIVE \
+            else None
+        self._shadow = robot_shadow(lambda: robot_alone(robot, self.config.physics_dt_s), self.model,
+                                    self.index.qpos_adr, self.index.dof_adr)
+        self._native_shadow = _NO_SHADOW if self._shadow is None else (
+            self._shadow[0]._address, self._shadow[1]._address, self._shadow[1].ctrl, self._shadow[1].qpos,
+            np.empty(mujoco.mj_stateSize(self._shadow[0], STATE)))
         stretches = self._substeps // self._motor_substeps + 1
         self._ramp_out = (np.empty(stretches, dtype=np.int64), np.empty((stretches, 3)))
         flags = self.model.opt.disableflags
@@ -330,10 +338,10 @@ class Simulator:
         limit = min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
-        if self._native_step:  # the same stretches in one compiled call
+        if self._native_scene is not None:  # the same stretches in one compiled call
             steps, poses = self._ramp_out
-            k, v, w, count = ramp_steps(MJ_STEP, self._native_step[0], self._native_step[1], k, limit, motor, v, w,
-                                        v_target, w_target, dv_max, dw_max, self._ctrl, self._base_qpos, steps, poses)
+            k, v, w, count = ramp_steps(FUNCTIONS, self._native_scene, self._native_shadow, k, limit, motor,
+                                        (v, w, v_target, w_target, dv_max, dw_max), steps, poses)
             if count:
                 self._history.extend(zip(steps[:count].tolist(), *poses[:count].T.tolist()))
             self._v_m_s, self._w_rad_s, self._step_count = v, w, k

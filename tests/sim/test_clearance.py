@@ -8,6 +8,8 @@ import numpy as np
 from simnav.robot import load_robot
 from simnav.sim import SimConfig, Simulator
 from simnav.sim.clearance import ContactClearance
+from simnav.sim.native import STATE
+from simnav.sim.simulator import _NO_SHADOW
 from simnav.world import load_world
 from tests.conftest import box_room_spec
 
@@ -78,17 +80,27 @@ def test_a_scene_outside_its_assumptions_is_never_clear():
     assert clearance.clear_steps(data, 1, np.zeros(3), np.zeros(3)) == 0
 
 
-def test_the_compiled_motor_ramp_changes_nothing():
-    """The motor ramp's stretches run in one compiled call (simnav.sim.native); stepped from Python instead, the
-    poses after every stretch, the contacts and the scans are the same to the bit."""
+def test_the_compiled_motor_ramp_and_its_shadow_change_nothing():
+    """The motor ramp's stretches run in one compiled call, most of them in a robot-only shadow model
+    (simnav.sim.native); without the shadow, or stepped from Python, the poses after every stretch, the contacts,
+    the scans and the final state are the same to the bit."""
     world, robot = load_world("office"), load_robot("giraff", LIDAR_ONLY)
     config = SimConfig(pedestrians=6, wanderers=1)
-    with Simulator(world, robot, config, seed=3) as sim:
-        assert sim._native_step, "the compiled path is available here"
-        compiled = _drive(sim, 400)
-    with Simulator(world, robot, config, seed=3) as sim:
-        sim._native_step = ()
-        python = _drive(sim, 400)
-    assert compiled[0] == python[0] and compiled[1] == python[1]
-    for a, b in zip(compiled[2], python[2], strict=True):
-        np.testing.assert_array_equal(a, b)
+    runs = []
+    for variant in ("shadow", "compiled", "python"):
+        with Simulator(world, robot, config, seed=3) as sim:
+            assert sim._native_scene is not None and sim._shadow is not None, "both are available here"
+            if variant != "shadow":
+                sim._native_shadow = _NO_SHADOW
+            if variant == "python":
+                sim._native_scene = None
+            history, events, scans = _drive(sim, 400)
+            state = np.empty(mujoco.mj_stateSize(sim.model, STATE))
+            mujoco.mj_getState(sim.model, sim.data, state, STATE)
+            runs.append((history, events, scans, state, sim.data.qacc.copy(), sim.data.xpos.copy()))
+    for other in runs[1:]:
+        assert other[0] == runs[0][0] and other[1] == runs[0][1]
+        for a, b in zip(other[2], runs[0][2], strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(other[3:], runs[0][3:], strict=True):
+            np.testing.assert_array_equal(a, b)
