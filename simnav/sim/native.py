@@ -113,11 +113,12 @@ def _hand_over(functions: np.ndarray, model_from: int, data_from: int, model_to:
 
 
 @njit(cache=True, error_model="numpy")
-def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, limit: int, motor: int, ramp: tuple,
-               steps_out: np.ndarray, poses_out: np.ndarray) -> tuple[int, float, float, int]:
-    """The motor ramp's stretches from physics step ``k``: while ``k`` is on a motor period, a whole period fits
-    before step ``limit`` and (v, w) has not reached the target, (v, w) moves towards the target by at most the
-    limits, goes to the controls (forward and yaw), and ``motor`` physics steps run.
+def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first: int, limit: int, motor: int,
+               ramp: tuple, steps_out: np.ndarray, poses_out: np.ndarray) -> tuple[int, float, float, int]:
+    """A stretch of ``first`` physics steps from step ``k`` with the controls as they are (none for 0), then the
+    motor ramp's stretches: while the step is on a motor period, a whole period fits before step ``limit`` and
+    (v, w) has not reached the target, (v, w) moves towards the target by at most the limits, goes to the controls
+    (forward and yaw), and ``motor`` physics steps run.
 
     Args:
         functions: the addresses of ``mj_step``, ``mj_getState`` and ``mj_setState`` (:data:`FUNCTIONS`).
@@ -135,7 +136,7 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, limit
     shadow_model, shadow_data, shadow_ctrl, shadow_qpos, state = shadow
     v, w, v_target, w_target, dv_max, dw_max = ramp
     # how many stretches run
-    count, kk, vv, ww = 0, k, v, w
+    count, kk, vv, ww = (1, k + first, v, w) if first > 0 else (0, k, v, w)
     while (count < steps_out.shape[0] and kk % motor == 0 and kk + motor <= limit
            and (v_target != vv or w_target != ww)):
         vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
@@ -146,20 +147,25 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, limit
     if shadowed > 0:
         _hand_over(functions, model, data, shadow_model, shadow_data, state)
     for i in range(count):
-        v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
+        given = i == 0 and first > 0  # the first stretch, with the controls as they are
+        steps = first if given else motor
+        if not given:
+            v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
         if i < shadowed:
-            shadow_ctrl[0], shadow_ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
-            for _ in range(motor):
+            if not given:
+                shadow_ctrl[0], shadow_ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
+            for _ in range(steps):
                 _call_step(functions[0], shadow_model, shadow_data)
             poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = shadow_qpos[0], shadow_qpos[1], shadow_qpos[2]
         else:
             if i == shadowed and shadowed > 0:
                 _hand_over(functions, shadow_model, shadow_data, model, data, state)
-            ctrl[0], ctrl[2] = v, w
-            for _ in range(motor):
+            if not given:
+                ctrl[0], ctrl[2] = v, w
+            for _ in range(steps):
                 _call_step(functions[0], model, data)
             poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
-        k += motor
+        k += steps
         steps_out[i] = k
     return k, v, w, count
 

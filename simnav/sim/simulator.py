@@ -303,18 +303,25 @@ class Simulator:
             if (k + n <= clear_until) != skipping:
                 skipping = not skipping
                 opt.disableflags = flags[skipping]
-            if encoders:
-                v0, w0 = self.base_velocity()
-            mujoco.mj_step(model, data, n)
-            self._step_count = k = k + n
-            if encoders:
-                v1, w1 = self.base_velocity()
-                for s in encoders:
-                    s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
-            history.append((k, *base_qpos.tolist()))
-            # the motor ramping on its own meanwhile: its stretches with fewer checks
-            if skipping and not encoders:
-                k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step, clear_until))
+            if skipping and not encoders and self._native_scene is not None:
+                # this stretch, then the motor ramping on its own meanwhile, in one compiled call
+                after = k + n
+                k = self._ramp_stretches(k, min(end, -(-after // agent) * agent, self._next_capture_step,
+                                                clear_until), first=n)
+            else:
+                if encoders:
+                    v0, w0 = self.base_velocity()
+                mujoco.mj_step(model, data, n)
+                self._step_count = k = k + n
+                if encoders:
+                    v1, w1 = self.base_velocity()
+                    for s in encoders:
+                        s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
+                history.append((k, *base_qpos.tolist()))
+                # the motor ramping on its own meanwhile: its stretches with fewer checks
+                if skipping and not encoders:
+                    k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step,
+                                                    clear_until))
             if data.ncon:
                 self._check_contacts()
             else:
@@ -327,11 +334,14 @@ class Simulator:
                 delivered += self._deliver()
         return delivered
 
-    def _ramp_stretches(self, k: int, limit: int) -> int:
+    def _ramp_stretches(self, k: int, limit: int, first: int = 0) -> int:
         """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
         period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
         possible contact, which the caller bounds) and no later than a command applies or a reading is due. Only
-        for a robot without wheel encoders and with collision detection off. Returns the step reached."""
+        for a robot without wheel encoders and with collision detection off. Returns the step reached.
+
+        ``first`` > 0 (compiled path only): a stretch of that many steps with the controls as they are comes
+        first, with its pose in the history, as :meth:`_stretches` runs it."""
         motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
         if len(commands) > 1:
             limit = min(limit, commands[1][0], commands[1][1])
@@ -340,7 +350,7 @@ class Simulator:
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
         if self._native_scene is not None:  # the same stretches in one compiled call
             steps, poses = self._ramp_out
-            k, v, w, count = ramp_steps(FUNCTIONS, self._native_scene, self._native_shadow, k, limit, motor,
+            k, v, w, count = ramp_steps(FUNCTIONS, self._native_scene, self._native_shadow, k, first, limit, motor,
                                         (v, w, v_target, w_target, dv_max, dw_max), steps, poses)
             if count:
                 self._history.extend(zip(steps[:count].tolist(), *poses[:count].T.tolist()))
