@@ -32,7 +32,7 @@ import os
 import mujoco
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import cfunc, njit, types
 from numba.core.extending import intrinsic
 
 STATE = int(mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART | mujoco.mjtState.mjSTATE_CTRL)
@@ -43,25 +43,59 @@ SELF_CHECK_STEPS = 12
 
 
 def _addresses(*names: str) -> tuple[int, ...]:
-    """Addresses of the named functions of the MuJoCo library of the ``mujoco`` package, or zeros if not found."""
+    """Addresses of the named functions of the MuJoCo library of the ``mujoco`` package and of its ``mjcb_time``
+    variable (last), or zeros if not found."""
     folder = os.path.dirname(mujoco.__file__)
     for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco.dll"):
         for path in sorted(glob.glob(os.path.join(folder, pattern))):
             try:
                 lib = ctypes.CDLL(path)
-                return tuple(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value or 0 for name in names)
-            except (OSError, AttributeError):
+                functions = tuple(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value or 0 for name in names)
+                return (*functions, ctypes.addressof(ctypes.c_void_p.in_dll(lib, "mjcb_time")))
+            except (OSError, AttributeError, ValueError):
                 continue
-    return (0,) * len(names)
+    return (0,) * (len(names) + 1)
 
 
-MJ_STEP, MJ_GET_STATE, MJ_SET_STATE = _addresses("mj_step", "mj_getState", "mj_setState")
+@cfunc(types.float64())
+def _no_time() -> float:
+    """MuJoCo's timer callback while the compiled ramp steps: no clock reading (the stage timers record 0 s)."""
+    return 0.0
+
+
+MJ_STEP, MJ_GET_STATE, MJ_SET_STATE, MJCB_TIME = _addresses("mj_step", "mj_getState", "mj_setState")
 """Addresses of MuJoCo's ``mj_step(const mjModel*, mjData*)``, ``mj_getState(const mjModel*, const mjData*,
 mjtNum* state, int sig)`` and ``mj_setState(const mjModel*, mjData*, const mjtNum* state, int sig)``; 0 when
 unavailable."""
 NATIVE = MJ_STEP != 0 and MJ_GET_STATE != 0 and MJ_SET_STATE != 0
 """Whether :func:`ramp_steps` can run (else the caller steps from Python)."""
-FUNCTIONS = np.array([MJ_STEP, MJ_GET_STATE, MJ_SET_STATE], dtype=np.int64)
+FUNCTIONS = np.array([MJ_STEP, MJ_GET_STATE, MJ_SET_STATE, MJCB_TIME, _no_time.address if MJCB_TIME else 0],
+                     dtype=np.int64)
+"""What :func:`ramp_steps` calls: ``mj_step``, ``mj_getState``, ``mj_setState``, then the address of MuJoCo's timer
+callback ``mjcb_time`` and a callback that reads no clock (0: the timers are left alone)."""
+
+
+@intrinsic
+def _load_word(typingctx, address):
+    """The pointer-sized integer at ``address``."""
+    sig = types.int64(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.load(builder.inttoptr(args[0], ir.IntType(64).as_pointer()))
+
+    return sig, codegen
+
+
+@intrinsic
+def _store_word(typingctx, address, value):
+    """Write the pointer-sized integer ``value`` at ``address``."""
+    sig = types.void(types.int64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        builder.store(args[1], builder.inttoptr(args[0], ir.IntType(64).as_pointer()))
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @intrinsic
@@ -142,6 +176,12 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
         vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
         kk += motor
         count += 1
+    # no clock readings for MuJoCo's stage timers meanwhile (the time they measure is all they record); the
+    # callback in place is put back at the end
+    quiet = functions[4] != 0 and count > 0
+    if quiet:
+        timer = _load_word(functions[3])
+        _store_word(functions[3], functions[4])
     # all but the last in the shadow (when there is one), the last in the scene
     shadowed = count - 1 if shadow_model != 0 else 0
     if shadowed > 0:
@@ -167,6 +207,8 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
             poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
         k += steps
         steps_out[i] = k
+    if quiet:
+        _store_word(functions[3], timer)
     return k, v, w, count
 
 
