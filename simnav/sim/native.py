@@ -16,6 +16,11 @@ last stretch of a ramp in it, then copies its state (time, positions, velocities
 runs the last stretch in the scene, so that everything computed from the state (poses, forces, ...) is also what
 the scene's own steps would have left.
 
+MuJoCo times the stages of every step through its timer callback ``mjcb_time`` (a clock reading at each stage's
+start and end, ~30 per step), which costs more than a whole step of the shadow here. :func:`quiet_timers` sets a
+callback that reads no clock while the simulator steps (:func:`restore_timers` puts the previous one back): the
+stage timers in ``MjData.timer`` then record 0 s, and nothing else changes (the timers feed nothing).
+
 The addresses come from the library file (found next to the ``mujoco`` package, opened again: the loader returns
 the library already in the process); :data:`MJ_STEP` is 0 where it is not found, and the caller then steps from
 Python. These functions report errors through MuJoCo's error callback, which the Python bindings turn into
@@ -59,7 +64,7 @@ def _addresses(*names: str) -> tuple[int, ...]:
 
 @cfunc(types.float64())
 def _no_time() -> float:
-    """MuJoCo's timer callback while the compiled ramp steps: no clock reading (the stage timers record 0 s)."""
+    """A timer callback for MuJoCo that reads no clock (its stage timers then record 0 s)."""
     return 0.0
 
 
@@ -69,33 +74,28 @@ mjtNum* state, int sig)`` and ``mj_setState(const mjModel*, mjData*, const mjtNu
 unavailable."""
 NATIVE = MJ_STEP != 0 and MJ_GET_STATE != 0 and MJ_SET_STATE != 0
 """Whether :func:`ramp_steps` can run (else the caller steps from Python)."""
-FUNCTIONS = np.array([MJ_STEP, MJ_GET_STATE, MJ_SET_STATE, MJCB_TIME, _no_time.address if MJCB_TIME else 0],
-                     dtype=np.int64)
-"""What :func:`ramp_steps` calls: ``mj_step``, ``mj_getState``, ``mj_setState``, then the address of MuJoCo's timer
-callback ``mjcb_time`` and a callback that reads no clock (0: the timers are left alone)."""
+_TIMER_SLOT = ctypes.c_void_p.from_address(MJCB_TIME) if MJCB_TIME else None
+_NO_TIME = _no_time.address
 
 
-@intrinsic
-def _load_word(typingctx, address):
-    """The pointer-sized integer at ``address``."""
-    sig = types.int64(types.int64)
+def quiet_timers() -> int | None:
+    """Set MuJoCo's timer callback to one that reads no clock (its stage timers then record 0 s, and every step
+    saves the clock readings); returns what to give :func:`restore_timers`."""
+    if _TIMER_SLOT is None:
+        return None
+    previous = _TIMER_SLOT.value
+    _TIMER_SLOT.value = _NO_TIME
+    return previous
 
-    def codegen(context, builder, signature, args):
-        return builder.load(builder.inttoptr(args[0], ir.IntType(64).as_pointer()))
 
-    return sig, codegen
+def restore_timers(previous: int | None) -> None:
+    """Put back the timer callback that :func:`quiet_timers` replaced."""
+    if _TIMER_SLOT is not None:
+        _TIMER_SLOT.value = previous
 
 
-@intrinsic
-def _store_word(typingctx, address, value):
-    """Write the pointer-sized integer ``value`` at ``address``."""
-    sig = types.void(types.int64, types.int64)
-
-    def codegen(context, builder, signature, args):
-        builder.store(args[1], builder.inttoptr(args[0], ir.IntType(64).as_pointer()))
-        return context.get_dummy_value()
-
-    return sig, codegen
+FUNCTIONS = np.array([MJ_STEP, MJ_GET_STATE, MJ_SET_STATE], dtype=np.int64)
+"""What :func:`ramp_steps` calls: ``mj_step``, ``mj_getState`` and ``mj_setState``."""
 
 
 @intrinsic
@@ -176,12 +176,6 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
         vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
         kk += motor
         count += 1
-    # no clock readings for MuJoCo's stage timers meanwhile (the time they measure is all they record); the
-    # callback in place is put back at the end
-    quiet = functions[4] != 0 and count > 0
-    if quiet:
-        timer = _load_word(functions[3])
-        _store_word(functions[3], functions[4])
     # all but the last in the shadow (when there is one), the last in the scene
     shadowed = count - 1 if shadow_model != 0 else 0
     if shadowed > 0:
@@ -207,8 +201,6 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
             poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
         k += steps
         steps_out[i] = k
-    if quiet:
-        _store_word(functions[3], timer)
     return k, v, w, count
 
 

@@ -29,7 +29,7 @@ from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
 from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
-from simnav.sim.native import FUNCTIONS, NATIVE, STATE, ramp_steps, robot_shadow
+from simnav.sim.native import FUNCTIONS, NATIVE, STATE, quiet_timers, ramp_steps, restore_timers, robot_shadow
 from simnav.sim.scene import build_scene, robot_alone
 from simnav.world.footprint import obstacle_segments
 from simnav.world.mjcf import WANDERER_RADIUS_M
@@ -275,10 +275,12 @@ class Simulator:
     def _run_until(self, end: int) -> list[Reading]:
         """Run the physics up to step ``end`` in stretches of constant controls, doing what is due after each;
         returns the readings delivered meanwhile, oldest first."""
+        timers = quiet_timers()  # MuJoCo's stage timers read no clock meanwhile (a good part of a step's cost)
         try:
             return self._stretches(end)
         finally:
             self.model.opt.disableflags = self._contact_flags[0]
+            restore_timers(timers)
 
     def _stretches(self, end: int) -> list[Reading]:
         """:meth:`_run_until`'s loop (it may leave MuJoCo's collision detection switched off)."""
