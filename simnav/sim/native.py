@@ -147,31 +147,32 @@ def _hand_over(functions: np.ndarray, model_from: int, data_from: int, model_to:
 
 
 @njit(cache=True, error_model="numpy")
-def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first: int, limit: int, motor: int,
-               ramp: tuple, steps_out: np.ndarray, poses_out: np.ndarray) -> tuple[int, float, float, int]:
+def ramp_steps(functions: np.ndarray, model: int, data: int, ctrl: np.ndarray, base_qpos: np.ndarray,
+               shadow_model: int, shadow_data: int, shadow_ctrl: np.ndarray, shadow_qpos: np.ndarray,
+               state: np.ndarray, k: int, first: int, limit: int, motor: int, v: float, w: float, v_target: float,
+               w_target: float, dv_max: float, dw_max: float, ring_steps: np.ndarray, ring_poses: np.ndarray,
+               at: int) -> tuple[int, float, float, int]:
     """A stretch of ``first`` physics steps from step ``k`` with the controls as they are (none for 0), then the
     motor ramp's stretches: while the step is on a motor period, a whole period fits before step ``limit`` and
-    (v, w) has not reached the target, (v, w) moves towards the target by at most the limits, goes to the controls
-    (forward and yaw), and ``motor`` physics steps run.
+    (v, w) has not reached the target, (v, w) moves towards (``v_target``, ``w_target``) by at most (``dv_max``,
+    ``dw_max``), goes to the controls (forward and yaw), and ``motor`` physics steps run.
 
     Args:
         functions: the addresses of ``mj_step``, ``mj_getState`` and ``mj_setState`` (:data:`FUNCTIONS`).
-        scene: (model address, data address, its (nu,) controls, its (3,) base x, y, yaw: views of the data).
-        shadow: the same of a robot-only shadow (:func:`robot_shadow`) and (S,) room for its STATE, or addresses
-            0 for none.
-        ramp: (v, w, target v, target w, largest change of v, of w per motor period).
-        steps_out, poses_out: (R,) and (R, 3) written: the end step of each stretch and the base pose (x, y, yaw)
-            after it; at most R stretches run.
+        model, data: the scene's addresses; ctrl (nu,) and base_qpos (3,): views of its controls and of the base's
+            x, y, yaw.
+        shadow_model, shadow_data, shadow_ctrl, shadow_qpos: the same of a robot-only shadow
+            (:func:`robot_shadow`), addresses 0 for none; state: room for its STATE.
+        ring_steps, ring_poses: (R,) and (R, 3) rings of stretch ends: each stretch's end step and the base pose
+            (x, y, yaw) after it go to entry ``at``, ``at + 1``, ... (modulo R); at most R stretches run.
 
     Returns:
         The step reached, the ramp's (v, w) and the number of stretches run.
     """
-    model, data, ctrl, base_qpos = scene
-    shadow_model, shadow_data, shadow_ctrl, shadow_qpos, state = shadow
-    v, w, v_target, w_target, dv_max, dw_max = ramp
+    size = ring_steps.shape[0]
     # how many stretches run
     count, kk, vv, ww = (1, k + first, v, w) if first > 0 else (0, k, v, w)
-    while (count < steps_out.shape[0] and kk % motor == 0 and kk + motor <= limit
+    while (count < size and kk % motor == 0 and kk + motor <= limit
            and (v_target != vv or w_target != ww)):
         vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
         kk += motor
@@ -185,12 +186,13 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
         steps = first if given else motor
         if not given:
             v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
+        j = (at + i) % size
         if i < shadowed:
             if not given:
                 shadow_ctrl[0], shadow_ctrl[2] = v, w  # (ctrl[1], the lateral speed, stays 0)
             for _ in range(steps):
                 _call_step(functions[0], shadow_model, shadow_data)
-            poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = shadow_qpos[0], shadow_qpos[1], shadow_qpos[2]
+            ring_poses[j, 0], ring_poses[j, 1], ring_poses[j, 2] = shadow_qpos[0], shadow_qpos[1], shadow_qpos[2]
         else:
             if i == shadowed and shadowed > 0:
                 _hand_over(functions, shadow_model, shadow_data, model, data, state)
@@ -198,9 +200,9 @@ def ramp_steps(functions: np.ndarray, scene: tuple, shadow: tuple, k: int, first
                 ctrl[0], ctrl[2] = v, w
             for _ in range(steps):
                 _call_step(functions[0], model, data)
-            poses_out[i, 0], poses_out[i, 1], poses_out[i, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
+            ring_poses[j, 0], ring_poses[j, 1], ring_poses[j, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
         k += steps
-        steps_out[i] = k
+        ring_steps[j] = k
     return k, v, w, count
 
 

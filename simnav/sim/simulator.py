@@ -39,7 +39,8 @@ log = logging.getLogger(__name__)
 _EPS_S = 1e-9
 _NEVER = 2**62  # a physics step never reached
 MOTOR_PERIOD_S = 0.01  # the motor controller applies its acceleration ramp at 100 Hz
-_NO_SHADOW = (0, 0, np.zeros(3), np.zeros(3), np.zeros(1))  # ramp_steps' shadow argument without one
+_NO_SHADOW = (0, 0, np.zeros(3), np.zeros(3), np.zeros(1))  # ramp_steps' shadow arguments without one
+HISTORY_SIZE = 4096  # poses kept for T_world_base_at (stretch ends: a few seconds)
 
 
 class Simulator:
@@ -88,8 +89,6 @@ class Simulator:
         self._native_shadow = _NO_SHADOW if self._shadow is None else (
             self._shadow[0]._address, self._shadow[1]._address, self._shadow[1].ctrl, self._shadow[1].qpos,
             np.empty(mujoco.mj_stateSize(self._shadow[0], STATE)))
-        stretches = self._substeps // self._motor_substeps + 1
-        self._ramp_out = (np.empty(stretches, dtype=np.int64), np.empty((stretches, 3)))
         flags = self.model.opt.disableflags
         self._contact_flags = (flags, flags | mujoco.mjtDisableBit.mjDSBL_CONTACT)  # (detecting, skipping)
         self.sensors = self._make_sensors()
@@ -134,7 +133,7 @@ class Simulator:
         self.contact_events: list[ContactEvent] = []
         self._step_count = 0
         # (physics step, x, y, yaw as in qpos: T_world_base_at wraps it) after every stretch of physics steps
-        self._history: deque[tuple[int, float, float, float]] = deque(maxlen=4096)
+        self._history = PoseHistory(HISTORY_SIZE)
         self._history.append((0, *self._base_qpos.tolist()))
         self._pose_agents_at(0.0)
         mujoco.mj_forward(self.model, self.data)
@@ -350,12 +349,12 @@ class Simulator:
         limit = min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
-        if self._native_scene is not None:  # the same stretches in one compiled call
-            steps, poses = self._ramp_out
-            k, v, w, count = ramp_steps(FUNCTIONS, self._native_scene, self._native_shadow, k, first, limit, motor,
-                                        (v, w, v_target, w_target, dv_max, dw_max), steps, poses)
-            if count:
-                self._history.extend(zip(steps[:count].tolist(), *poses[:count].T.tolist()))
+        if self._native_scene is not None:  # the same stretches in one compiled call, into the history's ring
+            history = self._history
+            k, v, w, count = ramp_steps(FUNCTIONS, *self._native_scene, *self._native_shadow, k, first, limit, motor,
+                                        v, w, v_target, w_target, dv_max, dw_max, history.steps, history.poses,
+                                        history.appended)
+            history.appended += count
             self._v_m_s, self._w_rad_s, self._step_count = v, w, k
             return k
         ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
@@ -607,6 +606,41 @@ class Simulator:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class PoseHistory:
+    """The last ``size`` entries (physics step, x m, y m, yaw rad as in qpos) of the base's poses after each stretch
+    of physics steps, in numpy rings that compiled code writes to (:func:`simnav.sim.native.ramp_steps`).
+
+    A sequence of ``(step, x, y, yaw)`` tuples, oldest first, like a ``deque(maxlen=size)`` of them.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.steps = np.zeros(size, dtype=np.int64)
+        self.poses = np.zeros((size, 3))
+        self.appended = 0
+        """How many entries were ever appended (the next goes to ring entry ``appended % size``)."""
+
+    def append(self, entry: tuple[int, float, float, float]) -> None:
+        j = self.appended % len(self.steps)
+        self.steps[j] = entry[0]
+        self.poses[j] = entry[1:]
+        self.appended += 1
+
+    def __len__(self) -> int:
+        return min(self.appended, len(self.steps))
+
+    def __getitem__(self, index: int) -> tuple[int, float, float, float]:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"history index {index} out of range for {n} entries")
+        j = (self.appended - n + index % n) % len(self.steps)
+        return (int(self.steps[j]), *self.poses[j].tolist())
+
+    def __iter__(self):
+        n, size = len(self), len(self.steps)
+        order = (np.arange(self.appended - n, self.appended) % size).tolist()
+        return iter(zip(self.steps[order].tolist(), *self.poses[order].T.tolist()))
 
 
 @functools.lru_cache(maxsize=256)

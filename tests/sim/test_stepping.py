@@ -70,3 +70,22 @@ def test_mujocos_timer_callback_is_put_back_after_each_step(box_room):
         with pytest.raises(TypeError):
             sim.step(0.4, 0.5)
         assert slot.value == before
+
+
+def test_the_pose_history_is_a_bounded_deque_of_tuples():
+    from collections import deque
+
+    from simnav.sim.simulator import PoseHistory
+
+    rng = np.random.default_rng(0)
+    history, reference = PoseHistory(64), deque(maxlen=64)
+    for k in range(150):
+        entry = (k, *rng.normal(size=3).tolist())
+        history.append(entry)
+        reference.append(entry)
+        if k in (0, 10, 63, 64, 65, 149):
+            assert list(history) == list(reference) and len(history) == len(reference)
+            for i in (0, len(reference) // 2, len(reference) - 1, -1, -len(reference)):
+                assert history[i] == reference[i] and type(history[i][0]) is int
+    with pytest.raises(IndexError):
+        history[64]
