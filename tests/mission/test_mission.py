@@ -158,8 +158,12 @@ def test_observers_see_every_step_and_the_robot_factory_drives_the_mission():
 
 
 def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
-    from simnav.mission.mission import (DOOR_APPROACH_M, DOOR_APPROACH_TOLERANCE_M, NARROW_NODE_TOLERANCE_M,
-                                        route_waypoints)
+    from simnav.mission.mission import (
+        DOOR_APPROACH_M,
+        DOOR_APPROACH_TOLERANCE_M,
+        NARROW_NODE_TOLERANCE_M,
+        route_waypoints,
+    )
 
     nodes = np.array([[0.0, 0.0], [3.0, -2.0], [3.0, 0.0], [3.0, 2.0], [3.0, 2.5]])  # node 2: a doorway
     narrow = np.array([False, False, True, False, False])
