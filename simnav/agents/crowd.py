@@ -129,12 +129,6 @@ def _shared_grid(walls: bytes, reach_m: float, cell_m: float) -> SegmentGrid:
     return SegmentGrid(Segments(np.frombuffer(walls).reshape(-1, 2, 2)), reach_m, cell_m)
 
 
-def _is_rows(values: object, width: int) -> bool:
-    """Whether ``values`` is a C-contiguous float64 ndarray of shape (K, ``width``) (the kernels take it as is)."""
-    return (type(values) is np.ndarray and values.dtype == np.float64 and values.ndim == 2
-            and values.shape[1] == width and values.flags.c_contiguous)
-
-
 class Crowd:
     """Pedestrians walking between roadmap nodes (social force model, hard non-overlap constraints).
 
@@ -263,17 +257,25 @@ class Crowd:
         """
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
+        circ, circ_vel = circle_arrays(circles, circle_velocities)
+        self._step(dt_s, dynamic_segments, circ, circ_vel, circles is not None)
+
+    def step_rows(self, dt_s: float, dynamic_segments: np.ndarray | None, circles: np.ndarray,
+                  circle_velocities: np.ndarray) -> None:
+        """:meth:`step` for a caller whose arrays are already as the kernels take them: ``dt_s`` > 0, C-contiguous
+        float64 (D, 2, 2) segments (or None), (C, 3) circles and (C, 2) velocities (the simulator, every agent
+        period), without the checks and conversions."""
+        self._step(dt_s, dynamic_segments, circles, circle_velocities, True)
+
+    def _step(self, dt_s: float, dynamic_segments: np.ndarray | None, circ: np.ndarray, circ_vel: np.ndarray,
+              has_circles: bool) -> None:
+        """:meth:`step` from the kernels' circle arrays (``has_circles`` False: there were none)."""
         self._time_s += dt_s
-        if (circle_velocities is not None and _is_rows(circles, 3) and _is_rows(circle_velocities, 2)
-                and len(circle_velocities) == len(circles)):
-            circ, circ_vel = circles, circle_velocities  # what circle_arrays returns for them
-        else:
-            circ, circ_vel = circle_arrays(circles, circle_velocities)
         if len(circ) and self._circle_pad[2] > 0:  # personal space around robots
             circ = circ + self._circle_pad
         self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
-        events = self._move(dt_s, dyn, circ, circ_vel, circles is not None)
+        events = self._move(dt_s, dyn, circ, circ_vel, has_circles)
         if len(events):
             self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
 

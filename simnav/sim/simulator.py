@@ -168,8 +168,13 @@ class Simulator:
                             np.empty((robots, 2)))
         self._agent_time_s = 0.0
         self._posed_at: tuple[float, float] | None = None
+        # the mocap rows of the people, the other robots and the doors, and their states packed in rows
+        # [x, y, vx, vy, yaw, yaw rate] (doors: yaw and yaw rate only) by _keep_agent_state
+        idx = self.index
+        self._mocap_rows = np.concatenate([idx.pedestrian_mocap, idx.wanderer_mocap, idx.door_mocap]).astype(np.int64)
+        self._movers = np.zeros((len(self._mocap_rows), 6))
+        self._moving = len(idx.pedestrian_mocap) + len(idx.wanderer_mocap)  # rows that move (the rest turn)
         self._keep_agent_state()
-        self._turners = (self.index.door_mocap, self.doors.yaws_rad, self.doors.yaw_rates_rad_s)  # change in place
 
     def _reset_drive(self) -> None:
         self._commands = deque([self._command(-math.inf, 0.0, 0.0)])
@@ -399,8 +404,7 @@ class Simulator:
                     WANDERER_RADIUS_M)
         # people (an empty crowd has nothing to step), then the other robots, then the doors
         if people_count:
-            crowd.step(dt, dynamic_segments=doors.segments_xy() if doors else None, circles=circles,
-                       circle_velocities=circle_vel)
+            crowd.step_rows(dt, doors.segments_xy() if doors else None, circles, circle_vel)
         _people_rows(nearby, blockers, crowd.motion_arrays()[0], crowd.radius_m, robots)
         if robots > 1:
             wanderers.step(dt, nearby[:people_count + 1])
@@ -412,18 +416,18 @@ class Simulator:
         self._pose_agents_at(self.time_s)
 
     def _keep_agent_state(self) -> None:
-        """Fetch the arrays of the people and other robots that poses are interpolated from (the agents replace
-        them when they step): their mocap rows, positions, velocities, yaws and yaw rates."""
-        idx = self.index
-        self._movers = (idx.pedestrian_mocap, *self.crowd.motion_arrays(), idx.wanderer_mocap,
-                        *self.wanderers.motion_arrays())
+        """Copy the state that poses are interpolated from (the people's and other robots' positions, velocities,
+        yaws and yaw rates, the doors' yaws and yaw rates) into the rows of ``_movers``."""
+        _pack_movers(self._movers, *self.crowd.motion_arrays(), *self.wanderers.motion_arrays(),
+                     self.doors.yaws_rad, self.doors.yaw_rates_rad_s)
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        _pose_agents(self._mocap_pos, self._mocap_quat, self._movers, self._turners, max(self._agent_time_s - t_s, 0.0))
+        _pose_agents(self._mocap_pos, self._mocap_quat, self._mocap_rows, self._movers, self._moving,
+                     max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -694,40 +698,38 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
 
 
 @njit(cache=True, error_model="numpy")
-def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, turners: tuple, back_s: float) -> None:
-    """Pose the mocap bodies of the people and other robots (:func:`_pose_movers`) and of the doors
-    (:func:`_pose_turners`) ``back_s`` before their states.
-
-    ``movers`` = (people's mocap rows, positions, velocities, yaws, yaw rates, then the same of the other robots);
-    ``turners`` = (doors' mocap rows, yaws, yaw rates).
-    """
-    people, people_xy, people_vel, people_yaw, people_rate, robots, robots_xy, robots_vel, robots_yaw, robots_rate = \
-        movers
-    doors, doors_yaw, doors_rate = turners
-    _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
-    _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
-    _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
+def _pack_movers(out: np.ndarray, people_xy: np.ndarray, people_vel: np.ndarray, people_yaw: np.ndarray,
+                 people_rate: np.ndarray, robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray,
+                 robots_rate: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray) -> None:
+    """Rows of ``out`` (P + R + D, 6): [x, y, vx, vy, yaw, yaw rate] of the P people, then of the R other robots
+    ((N, 2) positions m and velocities m/s, (N,) yaws rad and yaw rates rad/s), then [-, -, -, -, yaw, yaw rate]
+    of the D doors."""
+    p, r = people_xy.shape[0], robots_xy.shape[0]
+    for i in range(p):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = people_xy[i, 0], people_xy[i, 1], people_vel[i, 0], \
+            people_vel[i, 1]
+        out[i, 4], out[i, 5] = people_yaw[i], people_rate[i]
+    for i in range(r):
+        out[p + i, 0], out[p + i, 1], out[p + i, 2], out[p + i, 3] = robots_xy[i, 0], robots_xy[i, 1], \
+            robots_vel[i, 0], robots_vel[i, 1]
+        out[p + i, 4], out[p + i, 5] = robots_yaw[i], robots_rate[i]
+    for d in range(doors_yaw.shape[0]):
+        out[p + r + d, 4], out[p + r + d, 5] = doors_yaw[d], doors_rate[d]
 
 
 @njit(cache=True, error_model="numpy")
-def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, xy: np.ndarray, vel: np.ndarray,
-                 yaw: np.ndarray, yaw_rate: np.ndarray, back_s: float) -> None:
-    """Put mocap body ``rows[k]`` on the floor at ``xy[k] - vel[k]·back_s`` (m), turned to ``yaw[k] -
-    yaw_rate[k]·back_s`` (rad), for the (N, 2) positions and velocities and (N,) yaws and yaw rates of N agents."""
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, movers: np.ndarray, moving: int,
+                 back_s: float) -> None:
+    """Pose mocap body ``rows[k]`` ``back_s`` before the state in row k of ``movers`` (:func:`_pack_movers`): the
+    first ``moving`` (people, other robots) on the floor at ``xy - vel·back_s`` (m), turned to ``yaw -
+    yaw_rate·back_s`` (rad); the others (doors) only turned."""
     for k in range(rows.shape[0]):
         m = rows[k]
-        mocap_pos[m, 0] = xy[k, 0] - vel[k, 0] * back_s
-        mocap_pos[m, 1] = xy[k, 1] - vel[k, 1] * back_s
-        mocap_pos[m, 2] = 0.0
-        _set_yaw(mocap_quat, m, yaw[k] - yaw_rate[k] * back_s)
-
-
-@njit(cache=True, error_model="numpy")
-def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray,
-                  back_s: float) -> None:
-    """Turn mocap body ``rows[k]`` to ``yaw[k] - yaw_rate[k]·back_s`` (rad) for the (N,) yaws and yaw rates."""
-    for k in range(rows.shape[0]):
-        _set_yaw(mocap_quat, rows[k], yaw[k] - yaw_rate[k] * back_s)
+        if k < moving:
+            mocap_pos[m, 0] = movers[k, 0] - movers[k, 2] * back_s
+            mocap_pos[m, 1] = movers[k, 1] - movers[k, 3] * back_s
+            mocap_pos[m, 2] = 0.0
+        _set_yaw(mocap_quat, m, movers[k, 4] - movers[k, 5] * back_s)
 
 
 @njit(cache=True, error_model="numpy")
