@@ -343,15 +343,20 @@ class Simulator:
     def _ramp_stretches(self, k: int, limit: int, first: int = 0) -> int:
         """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
         period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
-        possible contact, which the caller bounds) and no later than a command applies or a reading is due. Only
+        possible contact, which the caller bounds) and no later than a command applies or a capture is due. Only
         for a robot without wheel encoders and with collision detection off. Returns the step reached.
+
+        Readings whose latency passes meanwhile are delivered after it (the caller delivers everything due then,
+        in the same order): in lockstep, where nothing else decides what is delivered, the step returns the same
+        readings. Without lockstep (camera frames delivered when ready) it also stops where a reading is due.
 
         ``first`` > 0 (compiled path only): a stretch of that many steps with the controls as they are comes
         first, with its pose in the history, as :meth:`_stretches` runs it."""
         motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
         if len(commands) > 1:
             limit = min(limit, commands[1][0], commands[1][1])
-        limit = min(limit, self._next_due_step, self._delivery_step)
+        limit = min(limit, self._next_due_step) if self.config.lockstep else \
+            min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
         if self._native_scene is not None:  # the same stretches in one compiled call, into the history's ring
