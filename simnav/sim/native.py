@@ -150,12 +150,17 @@ def _hand_over(functions: np.ndarray, model_from: int, data_from: int, model_to:
 def ramp_steps(functions: np.ndarray, model: int, data: int, ctrl: np.ndarray, base_qpos: np.ndarray,
                shadow_model: int, shadow_data: int, shadow_ctrl: np.ndarray, shadow_qpos: np.ndarray,
                state: np.ndarray, k: int, first: int, limit: int, motor: int, v: float, w: float, v_target: float,
-               w_target: float, dv_max: float, dw_max: float, ring_steps: np.ndarray, ring_poses: np.ndarray,
-               at: int) -> tuple[int, float, float, int]:
+               w_target: float, dv_max: float, dw_max: float, switch_at: int, v_next: float, w_next: float,
+               ring_steps: np.ndarray, ring_poses: np.ndarray, at: int) -> tuple[int, float, float, int, bool]:
     """A stretch of ``first`` physics steps from step ``k`` with the controls as they are (none for 0), then the
     motor ramp's stretches: while the step is on a motor period, a whole period fits before step ``limit`` and
     (v, w) has not reached the target, (v, w) moves towards (``v_target``, ``w_target``) by at most (``dv_max``,
     ``dw_max``), goes to the controls (forward and yaw), and ``motor`` physics steps run.
+
+    At step ``switch_at`` (a queued command applying there; beyond ``limit`` for none) the target becomes
+    (``v_next``, ``w_next``) if (v, w) is still ramping towards the old one and has not reached the new one (the
+    stretch from there is then the one the stepping loop runs after the command applies); else the stretches
+    stop there.
 
     Args:
         functions: the addresses of ``mj_step``, ``mj_getState`` and ``mj_setState`` (:data:`FUNCTIONS`).
@@ -167,16 +172,21 @@ def ramp_steps(functions: np.ndarray, model: int, data: int, ctrl: np.ndarray, b
             (x, y, yaw) after it go to entry ``at``, ``at + 1``, ... (modulo R); at most R stretches run.
 
     Returns:
-        The step reached, the ramp's (v, w) and the number of stretches run.
+        The step reached, the ramp's (v, w), the number of stretches run and whether the target switched.
     """
     size = ring_steps.shape[0]
     # how many stretches run
-    count, kk, vv, ww = (1, k + first, v, w) if first > 0 else (0, k, v, w)
-    while (count < size and kk % motor == 0 and kk + motor <= limit
-           and (v_target != vv or w_target != ww)):
-        vv, ww = _ramped(vv, v_target, dv_max), _ramped(ww, w_target, dw_max)
+    count, kk, vv, ww, vt, wt = (1, k + first, v, w, v_target, w_target) if first > 0 else \
+        (0, k, v, w, v_target, w_target)
+    while count < size and kk % motor == 0 and kk + motor <= limit and (vt != vv or wt != ww):
+        if kk == switch_at:
+            if v_next == vv and w_next == ww:
+                break
+            vt, wt = v_next, w_next
+        vv, ww = _ramped(vv, vt, dv_max), _ramped(ww, wt, dw_max)
         kk += motor
         count += 1
+    switched = False
     # all but the last in the shadow (when there is one), the last in the scene
     shadowed = count - 1 if shadow_model != 0 else 0
     if shadowed > 0:
@@ -185,6 +195,8 @@ def ramp_steps(functions: np.ndarray, model: int, data: int, ctrl: np.ndarray, b
         given = i == 0 and first > 0  # the first stretch, with the controls as they are
         steps = first if given else motor
         if not given:
+            if k == switch_at:
+                v_target, w_target, switched = v_next, w_next, True
             v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
         j = (at + i) % size
         if i < shadowed:
@@ -203,7 +215,7 @@ def ramp_steps(functions: np.ndarray, model: int, data: int, ctrl: np.ndarray, b
             ring_poses[j, 0], ring_poses[j, 1], ring_poses[j, 2] = base_qpos[0], base_qpos[1], base_qpos[2]
         k += steps
         ring_steps[j] = k
-    return k, v, w, count
+    return k, v, w, count, switched
 
 
 def robot_shadow(spec_of_robot, model: mujoco.MjModel, qpos_adr: np.ndarray, dof_adr: np.ndarray

@@ -343,8 +343,9 @@ class Simulator:
     def _ramp_stretches(self, k: int, limit: int, first: int = 0) -> int:
         """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
         period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
-        possible contact, which the caller bounds) and no later than a command applies or a capture is due. Only
-        for a robot without wheel encoders and with collision detection off. Returns the step reached.
+        possible contact, which the caller bounds) and no later than a command applies (the compiled path with a
+        one-step motor period: applies the next command where it is due and runs on) or a capture is due. Only for
+        a robot without wheel encoders and with collision detection off. Returns the step reached.
 
         Readings whose latency passes meanwhile are delivered after it (the caller delivers everything due then,
         in the same order): in lockstep, where nothing else decides what is delivered, the step returns the same
@@ -353,20 +354,30 @@ class Simulator:
         ``first`` > 0 (compiled path only): a stretch of that many steps with the controls as they are comes
         first, with its pose in the history, as :meth:`_stretches` runs it."""
         motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
-        if len(commands) > 1:
-            limit = min(limit, commands[1][0], commands[1][1])
         limit = min(limit, self._next_due_step) if self.config.lockstep else \
             min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
         if self._native_scene is not None:  # the same stretches in one compiled call, into the history's ring
+            # a single queued command can switch the target inside the call where it applies (as _apply_drive
+            # would there) when the motor period is one physics step (longer: the stepping loop makes the stretch
+            # there a single step, the command being an event); any other stops the stretches where it applies
+            switch_at, v_next, w_next = _NEVER, 0.0, 0.0
+            if motor == 1 and len(commands) == 2 and commands[1][0] == commands[1][1]:
+                switch_at, _, v_next, w_next = commands[1]
+            elif len(commands) > 1:
+                limit = min(limit, commands[1][0], commands[1][1])
             history = self._history
-            k, v, w, count = ramp_steps(FUNCTIONS, *self._native_scene, *self._native_shadow, k, first, limit, motor,
-                                        v, w, v_target, w_target, dv_max, dw_max, history.steps, history.poses,
-                                        history.appended)
+            k, v, w, count, switched = ramp_steps(
+                FUNCTIONS, *self._native_scene, *self._native_shadow, k, first, limit, motor, v, w, v_target,
+                w_target, dv_max, dw_max, switch_at, v_next, w_next, history.steps, history.poses, history.appended)
             history.appended += count
+            if switched:
+                commands.popleft()
             self._v_m_s, self._w_rad_s, self._step_count = v, w, k
             return k
+        if len(commands) > 1:
+            limit = min(limit, commands[1][0], commands[1][1])
         ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
         while k % motor == 0 and k + motor <= limit and (v_target != v or w_target != w):
             v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
