@@ -166,6 +166,8 @@ class Crowd:
         self._rules = (YIELD_SPEED_FACTOR, params.wall_look_ahead_m > 0.0, params.max_speed_factor, params.radius_m,
                        PROJECTION_SWEEPS, NEAR_SLACK_M, _TURNING, _BLOCKING, _STUCK)
         self._limits = (GOAL_REACHED_M, WAYPOINT_REACHED_M, params.radius_m, OCCUPIED_MARGIN_M)
+        self._circle_pad = np.array([0.0, 0.0, params.circle_clearance_m])  # added to the circles (read only)
+        self._circle_pad.flags.writeable = False
         self._init_grids()
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
         self._pos, start_nodes = self._spawn(int(count), keep)
@@ -255,13 +257,25 @@ class Crowd:
         """
         if dt_s <= 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
-        self._time_s += dt_s
         circ, circ_vel = circle_arrays(circles, circle_velocities)
-        if len(circ) and self._params.circle_clearance_m > 0:  # personal space around robots
-            circ = circ + np.array([0.0, 0.0, self._params.circle_clearance_m])
+        self._step(dt_s, dynamic_segments, circ, circ_vel, circles is not None)
+
+    def step_rows(self, dt_s: float, dynamic_segments: np.ndarray | None, circles: np.ndarray,
+                  circle_velocities: np.ndarray) -> None:
+        """:meth:`step` for a caller whose arrays are already as the kernels take them: ``dt_s`` > 0, C-contiguous
+        float64 (D, 2, 2) segments (or None), (C, 3) circles and (C, 2) velocities (the simulator, every agent
+        period), without the checks and conversions."""
+        self._step(dt_s, dynamic_segments, circles, circle_velocities, True)
+
+    def _step(self, dt_s: float, dynamic_segments: np.ndarray | None, circ: np.ndarray, circ_vel: np.ndarray,
+              has_circles: bool) -> None:
+        """:meth:`step` from the kernels' circle arrays (``has_circles`` False: there were none)."""
+        self._time_s += dt_s
+        if len(circ) and self._circle_pad[2] > 0:  # personal space around robots
+            circ = circ + self._circle_pad
         self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
-        events = self._move(dt_s, dyn, circ, circ_vel, circles is not None)
+        events = self._move(dt_s, dyn, circ, circ_vel, has_circles)
         if len(events):
             self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
 
@@ -280,7 +294,10 @@ class Crowd:
         stays; :func:`~simnav.agents.kernels.crowd_move` fills it)."""
         if dynamic_segments is None:
             return self._no_segments
-        dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
+        dyn = dynamic_segments
+        if not (type(dyn) is np.ndarray and dyn.dtype == np.float64 and dyn.ndim == 3 and dyn.shape[1:] == (2, 2)
+                and dyn.flags.c_contiguous):
+            dyn = np.ascontiguousarray(dynamic_segments, dtype=float).reshape(-1, 2, 2)
         if len(dyn) and len(self._extended) != len(self._walls) + len(dyn):
             self._extended = self._walls.extended(dyn)
             self._extended_args = (*self._extended.arrays, len(self._walls))

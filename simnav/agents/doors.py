@@ -220,7 +220,8 @@ def _update(leaves: Sequence[DoorLeaf], params: np.ndarray, state: np.ndarray, t
     """Advance the leaves whose (D, ·) parameters and state these are (see :func:`_update_leaves`)."""
     nearby = _points(nearby_xy, 2)
     blockers = _points(blockers_xyr, 3)
-    verdicts = np.full(len(leaves), _DECIDE, dtype=np.int64)
+    verdicts = np.empty(len(leaves), dtype=np.int64)
+    verdicts.fill(_DECIDE)
     proposals = np.empty(len(leaves))
     if not _update_leaves(params, state, t_s, dt_s, nearby, blockers, verdicts, proposals):
         return
@@ -242,6 +243,9 @@ def _points(points: np.ndarray | None, width: int) -> np.ndarray:
     """(N, width) C-contiguous float64 copy or view of ``points`` ((0, width) for None)."""
     if points is None:
         return np.zeros((0, width))
+    if (type(points) is np.ndarray and points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == width
+            and points.flags.c_contiguous):
+        return points
     return np.ascontiguousarray(points, dtype=float).reshape(-1, width)
 
 

@@ -126,9 +126,14 @@ class Wanderers:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
         if len(self._pos) == 0:
             return
-        obstacles = self._no_obstacles if obstacles_xy is None else np.ascontiguousarray(obstacles_xy, dtype=float)
-        if obstacles.ndim != 2 or obstacles.shape[1] != 2:
-            obstacles = obstacles.reshape(-1, 2)
+        obstacles = obstacles_xy
+        if obstacles is None:
+            obstacles = self._no_obstacles
+        elif not (type(obstacles) is np.ndarray and obstacles.dtype == np.float64 and obstacles.ndim == 2
+                  and obstacles.shape[1] == 2 and obstacles.flags.c_contiguous):
+            obstacles = np.ascontiguousarray(obstacles_xy, dtype=float)
+            if obstacles.ndim != 2 or obstacles.shape[1] != 2:
+                obstacles = obstacles.reshape(-1, 2)
         # headings, bearings, the drive and the blocked times in one pass
         self._yaw, self._yaw_rate, self._vel, self._pos, reached = _advance(
             self._pos, self._yaw, self._prev, self._next, self._blocked_s, self._nodes_xy, obstacles,

@@ -35,6 +35,7 @@ key                   shape             meaning
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import Any
@@ -111,6 +112,7 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.observation_space = self._observation_space()
         self._sim = None
+        self._scale_of = (math.nan, np.float32(math.nan))  # (a max range, np.float32(1 / it)) for the lidar
         self.last_readings: list = []
         """The sensor readings of the latest step (a viewer draws them)."""
         self._view = None
@@ -200,8 +202,11 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         sim = self._sim
         if sim is None:
             raise SimnavError("call reset() before step()")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        v, w = a.tolist() if a.shape == (2,) else (math.nan, math.nan)
+        if type(action) is np.ndarray and action.shape == (2,) and action.dtype.char in "fd":
+            v, w = action.tolist()  # the float64 values np.asarray(action, np.float64) holds, as Python floats
+        else:
+            a = np.asarray(action, dtype=np.float64).reshape(-1)
+            v, w = a.tolist() if a.shape == (2,) else (math.nan, math.nan)
         if not (math.isfinite(v) and math.isfinite(w)):
             raise SimnavError(f"action must be 2 finite numbers in [-1, 1] (v, w), got {action!r}")
         # Command and simulate one control period
@@ -213,17 +218,21 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 self._pose.feed(reading)
         # Outcome: progress, contacts begun this step, goal reached
         pose = sim.pose_xy_yaw
-        distance = self._distance_from(pose)
-        events = sim.contact_events
-        new_contacts = len(events) - self._contacts_seen
-        self._contacts_seen = len(events)
-        reached = distance <= self.config.success_distance_m
-        terms = self._reward_terms(self._distance_m - distance, new_contacts, reached)
+        distance = math.hypot(self._goal_x - pose[0], self._goal_y - pose[1])
+        contacts = len(sim.contact_events)
+        new_contacts = contacts - self._contacts_seen
+        self._contacts_seen = contacts
+        progress_w, time_term, contact_w, success_w, success_m, terminate_on_collision = self._reward_weights
+        reached = distance <= success_m
+        # the terms of _reward_terms, and their sum as sum() adds them (from 0, in this order)
+        progress, contact, success = progress_w * (self._distance_m - distance), contact_w * new_contacts, \
+            success_w if reached else 0.0
         self._distance_m = distance
-        terminated = reached or (new_contacts > 0 and self.config.terminate_on_collision)
-        info = {**terms, "distance_to_goal_m": distance, "is_success": reached, "collision": new_contacts > 0,
-                "contacts": len(events), "sim_time_s": sim.time_s}
-        return self._observe(pose), float(sum(terms.values())), terminated, False, info
+        terminated = reached or (new_contacts > 0 and terminate_on_collision)
+        info = {"reward_progress": progress, "reward_time": time_term, "reward_contact": contact,
+                "reward_success": success, "distance_to_goal_m": distance, "is_success": reached,
+                "collision": new_contacts > 0, "contacts": contacts, "sim_time_s": sim.time_s}
+        return self._observe(pose), 0.0 + progress + time_term + contact + success, terminated, False, info
 
     def _reward_terms(self, progress_m: float, new_contacts: int, reached: bool) -> dict[str, float]:
         r = self.config.reward
@@ -231,6 +240,15 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 "reward_time": -r.time_per_s * self.config.control_dt_s,
                 "reward_contact": -r.contact * new_contacts,
                 "reward_success": r.success if reached else 0.0}
+
+    @functools.cached_property
+    def _reward_weights(self) -> tuple[float, float, float, float, float, bool]:
+        """The factors :meth:`_reward_terms` applies (progress, the time term itself, contact, success) and the
+        success distance and termination rule, read once from the (frozen) config."""
+        cfg = self.config
+        r = cfg.reward
+        return (r.progress_per_m, -r.time_per_s * cfg.control_dt_s, -r.contact, r.success, cfg.success_distance_m,
+                cfg.terminate_on_collision)
 
     def _distance_from(self, pose_xy_yaw: tuple[float, float, float]) -> float:
         """Distance (m) from the ground-truth ``pose_xy_yaw`` of the base to the goal."""
@@ -246,14 +264,19 @@ class NavEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             obs["depth"] = self._depth_obs(sim.latest(self._camera_name))
         obs["goal"] = self._goal_obs(pose_xy_yaw)
         v, w = sim.base_velocity()
-        obs["velocity"] = np.array([min(max(v, -self.max_v_m_s), self.max_v_m_s),
-                                    min(max(w, -self.max_w_rad_s), self.max_w_rad_s)], dtype=np.float32)
+        max_v, max_w = self.max_v_m_s, self.max_w_rad_s
+        obs["velocity"] = np.array([min(max(v, -max_v), max_v), min(max(w, -max_w), max_w)], dtype=np.float32)
         return obs
 
     def _lidar_obs(self, scan: LaserScan | None) -> np.ndarray:
         if scan is None:  # nothing delivered yet (a latency longer than the control period)
             return np.ones(self.lidar.beams, dtype=np.float32)
-        return _scaled_ranges(np.asarray(scan.ranges_m, dtype=np.float32), np.float32(1.0 / scan.max_range_m))
+        ranges = scan.ranges_m
+        if type(ranges) is not np.ndarray or ranges.dtype != np.float32:
+            ranges = np.asarray(ranges, dtype=np.float32)
+        if scan.max_range_m != self._scale_of[0]:
+            self._scale_of = (scan.max_range_m, np.float32(1.0 / scan.max_range_m))
+        return _scaled_ranges(ranges, self._scale_of[1])
 
     def _depth_obs(self, frame: RGBDFrame | None) -> np.ndarray:
         if frame is None:

@@ -59,8 +59,11 @@ class RayCaster:
         self._fixed_ids, self._moving_ids = _split_fixed(model, self._seen)
         self._data, self._poses, self._fixed = None, (), {}
 
-    def cast(self, data: mujoco.MjData) -> np.ndarray:
-        """(N,) distances to the first hit along each ray, metres; 0 where nothing is hit within max range."""
+    def cast(self, data: mujoco.MjData, copy: bool = True) -> np.ndarray:
+        """(N,) distances to the first hit along each ray, metres; 0 where nothing is hit within max range.
+
+        ``copy`` False: the caster's own buffer may be returned, valid until its next cast (for a caller that
+        only reads it meanwhile)."""
         if data is not self._data:  # views of the data's site and geom poses, kept while the data is the same
             self._data, self._poses = data, (data.site_xpos, data.site_xmat, data.geom_xpos, data.geom_xmat)
             self._fixed = {}
@@ -71,7 +74,7 @@ class RayCaster:
                                                   self._moving_ids, *self._geoms, geom_xpos, geom_xmat,
                                                   self._max_range, self._dirs_world, self._dist, self._geomid,
                                                   self._ranges):
-            return self._ranges.copy()
+            return self._ranges.copy() if copy else self._ranges
         # the transposed rotation copied contiguous first: numpy's matmul is then twice as fast (same products)
         np.copyto(self._rotation_t, mat.reshape(3, 3).T)
         dirs_world = np.matmul(self._dirs, self._rotation_t, out=self._dirs_world)
@@ -137,7 +140,7 @@ class Lidar2D:
 
     def capture(self, data: mujoco.MjData, stamp_s: float, rng: np.random.Generator) -> LaserScan:
         p = self.params
-        ranges = lidar_noise(self._caster.cast(data), rng, p.noise_std_m, p.dropout_prob, p.min_range_m,
+        ranges = lidar_noise(self._caster.cast(data, copy=False), rng, p.noise_std_m, p.dropout_prob, p.min_range_m,
                              p.max_range_m)
         return LaserScan(sensor=self.name, stamp_s=stamp_s, ranges_m=ranges, angles_rad=self._angles.copy(),
                          max_range_m=p.max_range_m, min_range_m=p.min_range_m, T_base_sensor=self.T_base_sensor)

@@ -22,12 +22,15 @@ def lidar_noise(
     Returns:
         (N,) float32 noisy ranges, 0 = invalid.
     """
-    ranges = np.ascontiguousarray(ranges_m, dtype=np.float64).reshape(-1)
+    flat = type(ranges_m) is np.ndarray and ranges_m.ndim == 1 and ranges_m.dtype == np.float64 and \
+        ranges_m.flags.c_contiguous
+    ranges = ranges_m if flat else np.ascontiguousarray(ranges_m, dtype=np.float64).reshape(-1)
     # rng.normal(0, std) is 0 + std·z of these draws of z: the same stream, scaled in the pass below
-    normals = rng.standard_normal(ranges.shape[0]) if noise_std_m > 0 else _NONE
-    uniforms = rng.random(ranges.shape[0]) if dropout_prob > 0 else _NONE
+    n = ranges.shape[0]
+    normals = rng.standard_normal(n) if noise_std_m > 0 else _NONE
+    uniforms = rng.random(n) if dropout_prob > 0 else _NONE
     out = _noisy_ranges(ranges, normals, noise_std_m, uniforms, dropout_prob, min_range_m, max_range_m)
-    return out.reshape(ranges_m.shape)
+    return out if flat else out.reshape(np.shape(ranges_m))
 
 
 @njit(cache=True, error_model="numpy")

@@ -60,6 +60,16 @@ def build_scene(
     return model, _index(model, pedestrians, wanderers, len(world.doors))
 
 
+def robot_alone(robot: RobotSpec, physics_dt_s: float) -> mujoco.MjSpec:
+    """The spec of the robot alone, with the options of :func:`build_scene` (the shadow of
+    :func:`simnav.sim.native.robot_shadow` is compiled from it)."""
+    spec = mujoco.MjSpec()
+    spec.modelname = f"{robot.name}_alone"
+    _set_options(spec, robot, physics_dt_s)
+    add_robot(spec, robot)
+    return spec
+
+
 def _set_options(spec: mujoco.MjSpec, robot: RobotSpec, physics_dt_s: float) -> None:
     spec.option.timestep = physics_dt_s
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST

@@ -29,7 +29,8 @@ from simnav.sensors.rgbd import RGBDCamera
 from simnav.sensors.wheels import WheelEncoders
 from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
-from simnav.sim.scene import build_scene
+from simnav.sim.native import FUNCTIONS, NATIVE, STATE, quiet_timers, ramp_steps, restore_timers, robot_shadow
+from simnav.sim.scene import build_scene, robot_alone
 from simnav.world.footprint import obstacle_segments
 from simnav.world.mjcf import WANDERER_RADIUS_M
 from simnav.world.schema import WorldSpec
@@ -38,6 +39,8 @@ log = logging.getLogger(__name__)
 _EPS_S = 1e-9
 _NEVER = 2**62  # a physics step never reached
 MOTOR_PERIOD_S = 0.01  # the motor controller applies its acceleration ramp at 100 Hz
+_NO_SHADOW = (0, 0, np.zeros(3), np.zeros(3), np.zeros(1))  # ramp_steps' shadow arguments without one
+HISTORY_SIZE = 4096  # poses kept for T_world_base_at (stretch ends: a few seconds)
 
 
 class Simulator:
@@ -76,6 +79,16 @@ class Simulator:
         drive = robot.drive
         self._ramp_limits = (drive.max_acc_m_s2 * motor_dt, drive.max_ang_acc_rad_s2 * motor_dt)
         self._clearance = ContactClearance(self.model, self.index.robot_body, drive.max_v_m_s)
+        # the motor ramp's stretches in compiled code, most of them in a robot-only shadow (see simnav.sim.native):
+        # the scene's and the shadow's addresses and views, and room for the end step and base pose of each
+        # stretch of a control period
+        self._native_scene = (self.model._address, self.data._address, self._ctrl, self._base_qpos) if NATIVE \
+            else None
+        self._shadow = robot_shadow(lambda: robot_alone(robot, self.config.physics_dt_s), self.model,
+                                    self.index.qpos_adr, self.index.dof_adr)
+        self._native_shadow = _NO_SHADOW if self._shadow is None else (
+            self._shadow[0]._address, self._shadow[1]._address, self._shadow[1].ctrl, self._shadow[1].qpos,
+            np.empty(mujoco.mj_stateSize(self._shadow[0], STATE)))
         flags = self.model.opt.disableflags
         self._contact_flags = (flags, flags | mujoco.mjtDisableBit.mjDSBL_CONTACT)  # (detecting, skipping)
         self.sensors = self._make_sensors()
@@ -120,7 +133,7 @@ class Simulator:
         self.contact_events: list[ContactEvent] = []
         self._step_count = 0
         # (physics step, x, y, yaw as in qpos: T_world_base_at wraps it) after every stretch of physics steps
-        self._history: deque[tuple[int, float, float, float]] = deque(maxlen=4096)
+        self._history = PoseHistory(HISTORY_SIZE)
         self._history.append((0, *self._base_qpos.tolist()))
         self._pose_agents_at(0.0)
         mujoco.mj_forward(self.model, self.data)
@@ -149,10 +162,19 @@ class Simulator:
         self.wanderers = Wanderers(self.roadmap, self.wanderer_count, self._rng_wanderers,
                                    speed_m_s=agents.robot_speed_m_s, radius_m=WANDERER_RADIUS_M, keep_out=keep_out)
         self.doors = DoorLeaves(self.world.doors)
+        people, robots = self.crowd.count, 1 + self.wanderers.count
+        blockers = np.empty((robots + people, 3))
+        self._agent_rows = (people, robots, blockers, np.empty((people + robots, 2)), blockers[:robots],
+                            np.empty((robots, 2)))
         self._agent_time_s = 0.0
         self._posed_at: tuple[float, float] | None = None
+        # the mocap rows of the people, the other robots and the doors, and their states packed in rows
+        # [x, y, vx, vy, yaw, yaw rate] (doors: yaw and yaw rate only) by _keep_agent_state
+        idx = self.index
+        self._mocap_rows = np.concatenate([idx.pedestrian_mocap, idx.wanderer_mocap, idx.door_mocap]).astype(np.int64)
+        self._movers = np.zeros((len(self._mocap_rows), 6))
+        self._moving = len(idx.pedestrian_mocap) + len(idx.wanderer_mocap)  # rows that move (the rest turn)
         self._keep_agent_state()
-        self._turners = (self.index.door_mocap, self.doors.yaws_rad, self.doors.yaw_rates_rad_s)  # change in place
 
     def _reset_drive(self) -> None:
         self._commands = deque([self._command(-math.inf, 0.0, 0.0)])
@@ -257,10 +279,12 @@ class Simulator:
     def _run_until(self, end: int) -> list[Reading]:
         """Run the physics up to step ``end`` in stretches of constant controls, doing what is due after each;
         returns the readings delivered meanwhile, oldest first."""
+        timers = quiet_timers()  # MuJoCo's stage timers read no clock meanwhile (a good part of a step's cost)
         try:
             return self._stretches(end)
         finally:
             self.model.opt.disableflags = self._contact_flags[0]
+            restore_timers(timers)
 
     def _stretches(self, end: int) -> list[Reading]:
         """:meth:`_run_until`'s loop (it may leave MuJoCo's collision detection switched off)."""
@@ -285,18 +309,25 @@ class Simulator:
             if (k + n <= clear_until) != skipping:
                 skipping = not skipping
                 opt.disableflags = flags[skipping]
-            if encoders:
-                v0, w0 = self.base_velocity()
-            mujoco.mj_step(model, data, n)
-            self._step_count = k = k + n
-            if encoders:
-                v1, w1 = self.base_velocity()
-                for s in encoders:
-                    s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
-            history.append((k, *base_qpos.tolist()))
-            # the motor ramping on its own meanwhile: its stretches with fewer checks
-            if skipping and not encoders:
-                k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step, clear_until))
+            if skipping and not encoders and self._native_scene is not None:
+                # this stretch, then the motor ramping on its own meanwhile, in one compiled call
+                after = k + n
+                k = self._ramp_stretches(k, min(end, -(-after // agent) * agent, self._next_capture_step,
+                                                clear_until), first=n)
+            else:
+                if encoders:
+                    v0, w0 = self.base_velocity()
+                mujoco.mj_step(model, data, n)
+                self._step_count = k = k + n
+                if encoders:
+                    v1, w1 = self.base_velocity()
+                    for s in encoders:
+                        s.integrate((v0 + v1) / 2, (w0 + w1) / 2, n * dt)
+                history.append((k, *base_qpos.tolist()))
+                # the motor ramping on its own meanwhile: its stretches with fewer checks
+                if skipping and not encoders:
+                    k = self._ramp_stretches(k, min(end, -(-k // agent) * agent, self._next_capture_step,
+                                                    clear_until))
             if data.ncon:
                 self._check_contacts()
             else:
@@ -309,17 +340,44 @@ class Simulator:
                 delivered += self._deliver()
         return delivered
 
-    def _ramp_stretches(self, k: int, limit: int) -> int:
+    def _ramp_stretches(self, k: int, limit: int, first: int = 0) -> int:
         """Run the stretches of the motor's ramp from physics step ``k`` while nothing else happens: one motor
         period each, as :meth:`_stretches` runs them, up to step ``limit`` at most (the next agent step, capture or
-        possible contact, which the caller bounds) and no later than a command applies or a reading is due. Only
-        for a robot without wheel encoders and with collision detection off. Returns the step reached."""
+        possible contact, which the caller bounds) and no later than a command applies (the compiled path with a
+        one-step motor period: applies the next command where it is due and runs on) or a capture is due. Only for
+        a robot without wheel encoders and with collision detection off. Returns the step reached.
+
+        Readings whose latency passes meanwhile are delivered after it (the caller delivers everything due then,
+        in the same order): in lockstep, where nothing else decides what is delivered, the step returns the same
+        readings. Without lockstep (camera frames delivered when ready) it also stops where a reading is due.
+
+        ``first`` > 0 (compiled path only): a stretch of that many steps with the controls as they are comes
+        first, with its pose in the history, as :meth:`_stretches` runs it."""
         motor, commands, model, data = self._motor_substeps, self._commands, self.model, self.data
-        if len(commands) > 1:
-            limit = min(limit, commands[1][0], commands[1][1])
-        limit = min(limit, self._next_due_step, self._delivery_step)
+        limit = min(limit, self._next_due_step) if self.config.lockstep else \
+            min(limit, self._next_due_step, self._delivery_step)
         _, _, v_target, w_target = commands[0]
         (dv_max, dw_max), v, w = self._ramp_limits, self._v_m_s, self._w_rad_s
+        if self._native_scene is not None:  # the same stretches in one compiled call, into the history's ring
+            # a single queued command can switch the target inside the call where it applies (as _apply_drive
+            # would there) when the motor period is one physics step (longer: the stepping loop makes the stretch
+            # there a single step, the command being an event); any other stops the stretches where it applies
+            switch_at, v_next, w_next = _NEVER, 0.0, 0.0
+            if motor == 1 and len(commands) == 2 and commands[1][0] == commands[1][1]:
+                switch_at, _, v_next, w_next = commands[1]
+            elif len(commands) > 1:
+                limit = min(limit, commands[1][0], commands[1][1])
+            history = self._history
+            k, v, w, count, switched = ramp_steps(
+                FUNCTIONS, *self._native_scene, *self._native_shadow, k, first, limit, motor, v, w, v_target,
+                w_target, dv_max, dw_max, switch_at, v_next, w_next, history.steps, history.poses, history.appended)
+            history.appended += count
+            if switched:
+                commands.popleft()
+            self._v_m_s, self._w_rad_s, self._step_count = v, w, k
+            return k
+        if len(commands) > 1:
+            limit = min(limit, commands[1][0], commands[1][1])
         ctrl, base_qpos, append, step = self._ctrl, self._base_qpos, self._history.append, mujoco.mj_step
         while k % motor == 0 and k + motor <= limit and (v_target != v or w_target != w):
             v, w = _ramped(v, v_target, dv_max), _ramped(w, w_target, dw_max)
@@ -353,18 +411,16 @@ class Simulator:
     def _step_agents(self) -> None:
         """Advance the people, the other robots and the doors by one agent period and pose them at the current time."""
         dt, crowd, wanderers, doors = self._agent_dt_s, self.crowd, self.wanderers, self.doors
-        people_count, robots = crowd.count, 1 + wanderers.count
         # blockers: circles of the robot and the other robots before this step, then of the people after it;
-        # nearby: the people and the robot, then the other robots after their step
-        blockers, nearby = np.empty((robots + people_count, 3)), np.empty((people_count + robots, 2))
-        circles, circle_vel = blockers[:robots], np.empty((robots, 2))
+        # nearby: the people and the robot, then the other robots after their step (buffers of this episode, which
+        # the agents read during their steps only)
+        people_count, robots, blockers, nearby, circles, circle_vel = self._agent_rows
         others_xy, others_vel = wanderers.motion_arrays()[:2]
         _robot_rows(circles, circle_vel, self._base_qpos, self._base_qvel, self.robot_radius_m, others_xy, others_vel,
                     WANDERER_RADIUS_M)
         # people (an empty crowd has nothing to step), then the other robots, then the doors
         if people_count:
-            crowd.step(dt, dynamic_segments=doors.segments_xy() if doors else None, circles=circles,
-                       circle_velocities=circle_vel)
+            crowd.step_rows(dt, doors.segments_xy() if doors else None, circles, circle_vel)
         _people_rows(nearby, blockers, crowd.motion_arrays()[0], crowd.radius_m, robots)
         if robots > 1:
             wanderers.step(dt, nearby[:people_count + 1])
@@ -376,18 +432,18 @@ class Simulator:
         self._pose_agents_at(self.time_s)
 
     def _keep_agent_state(self) -> None:
-        """Fetch the arrays of the people and other robots that poses are interpolated from (the agents replace
-        them when they step): their mocap rows, positions, velocities, yaws and yaw rates."""
-        idx = self.index
-        self._movers = (idx.pedestrian_mocap, *self.crowd.motion_arrays(), idx.wanderer_mocap,
-                        *self.wanderers.motion_arrays())
+        """Copy the state that poses are interpolated from (the people's and other robots' positions, velocities,
+        yaws and yaw rates, the doors' yaws and yaw rates) into the rows of ``_movers``."""
+        _pack_movers(self._movers, *self.crowd.motion_arrays(), *self.wanderers.motion_arrays(),
+                     self.doors.yaws_rad, self.doors.yaw_rates_rad_s)
 
     def _pose_agents_at(self, t_s: float) -> None:
         """Write agent poses into the mocap bodies at time ``t_s`` (linear motion towards the agent state)."""
         if self._posed_at == (t_s, self._agent_time_s):
             return
         self._posed_at = (t_s, self._agent_time_s)
-        _pose_agents(self._mocap_pos, self._mocap_quat, self._movers, self._turners, max(self._agent_time_s - t_s, 0.0))
+        _pose_agents(self._mocap_pos, self._mocap_quat, self._mocap_rows, self._movers, self._moving,
+                     max(self._agent_time_s - t_s, 0.0))
 
     # -------------------------------------------------------------------------------------------- sensors
     def _capture_due(self, t: float) -> None:
@@ -572,6 +628,41 @@ class Simulator:
         self.close()
 
 
+class PoseHistory:
+    """The last ``size`` entries (physics step, x m, y m, yaw rad as in qpos) of the base's poses after each stretch
+    of physics steps, in numpy rings that compiled code writes to (:func:`simnav.sim.native.ramp_steps`).
+
+    A sequence of ``(step, x, y, yaw)`` tuples, oldest first, like a ``deque(maxlen=size)`` of them.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.steps = np.zeros(size, dtype=np.int64)
+        self.poses = np.zeros((size, 3))
+        self.appended = 0
+        """How many entries were ever appended (the next goes to ring entry ``appended % size``)."""
+
+    def append(self, entry: tuple[int, float, float, float]) -> None:
+        j = self.appended % len(self.steps)
+        self.steps[j] = entry[0]
+        self.poses[j] = entry[1:]
+        self.appended += 1
+
+    def __len__(self) -> int:
+        return min(self.appended, len(self.steps))
+
+    def __getitem__(self, index: int) -> tuple[int, float, float, float]:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"history index {index} out of range for {n} entries")
+        j = (self.appended - n + index % n) % len(self.steps)
+        return (int(self.steps[j]), *self.poses[j].tolist())
+
+    def __iter__(self):
+        n, size = len(self), len(self.steps)
+        order = (np.arange(self.appended - n, self.appended) % size).tolist()
+        return iter(zip(self.steps[order].tolist(), *self.poses[order].T.tolist()))
+
+
 @functools.lru_cache(maxsize=256)
 def _step_time(k: int, dt_s: float) -> float:
     """Time of physics step ``k`` of ``dt_s`` seconds, s: ``k·dt`` rounded to the nanosecond (free of accumulated
@@ -623,40 +714,38 @@ def _people_rows(nearby: np.ndarray, blockers: np.ndarray, people_xy: np.ndarray
 
 
 @njit(cache=True, error_model="numpy")
-def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, movers: tuple, turners: tuple, back_s: float) -> None:
-    """Pose the mocap bodies of the people and other robots (:func:`_pose_movers`) and of the doors
-    (:func:`_pose_turners`) ``back_s`` before their states.
-
-    ``movers`` = (people's mocap rows, positions, velocities, yaws, yaw rates, then the same of the other robots);
-    ``turners`` = (doors' mocap rows, yaws, yaw rates).
-    """
-    people, people_xy, people_vel, people_yaw, people_rate, robots, robots_xy, robots_vel, robots_yaw, robots_rate = \
-        movers
-    doors, doors_yaw, doors_rate = turners
-    _pose_movers(mocap_pos, mocap_quat, people, people_xy, people_vel, people_yaw, people_rate, back_s)
-    _pose_movers(mocap_pos, mocap_quat, robots, robots_xy, robots_vel, robots_yaw, robots_rate, back_s)
-    _pose_turners(mocap_quat, doors, doors_yaw, doors_rate, back_s)
+def _pack_movers(out: np.ndarray, people_xy: np.ndarray, people_vel: np.ndarray, people_yaw: np.ndarray,
+                 people_rate: np.ndarray, robots_xy: np.ndarray, robots_vel: np.ndarray, robots_yaw: np.ndarray,
+                 robots_rate: np.ndarray, doors_yaw: np.ndarray, doors_rate: np.ndarray) -> None:
+    """Rows of ``out`` (P + R + D, 6): [x, y, vx, vy, yaw, yaw rate] of the P people, then of the R other robots
+    ((N, 2) positions m and velocities m/s, (N,) yaws rad and yaw rates rad/s), then [-, -, -, -, yaw, yaw rate]
+    of the D doors."""
+    p, r = people_xy.shape[0], robots_xy.shape[0]
+    for i in range(p):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = people_xy[i, 0], people_xy[i, 1], people_vel[i, 0], \
+            people_vel[i, 1]
+        out[i, 4], out[i, 5] = people_yaw[i], people_rate[i]
+    for i in range(r):
+        out[p + i, 0], out[p + i, 1], out[p + i, 2], out[p + i, 3] = robots_xy[i, 0], robots_xy[i, 1], \
+            robots_vel[i, 0], robots_vel[i, 1]
+        out[p + i, 4], out[p + i, 5] = robots_yaw[i], robots_rate[i]
+    for d in range(doors_yaw.shape[0]):
+        out[p + r + d, 4], out[p + r + d, 5] = doors_yaw[d], doors_rate[d]
 
 
 @njit(cache=True, error_model="numpy")
-def _pose_movers(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, xy: np.ndarray, vel: np.ndarray,
-                 yaw: np.ndarray, yaw_rate: np.ndarray, back_s: float) -> None:
-    """Put mocap body ``rows[k]`` on the floor at ``xy[k] - vel[k]·back_s`` (m), turned to ``yaw[k] -
-    yaw_rate[k]·back_s`` (rad), for the (N, 2) positions and velocities and (N,) yaws and yaw rates of N agents."""
+def _pose_agents(mocap_pos: np.ndarray, mocap_quat: np.ndarray, rows: np.ndarray, movers: np.ndarray, moving: int,
+                 back_s: float) -> None:
+    """Pose mocap body ``rows[k]`` ``back_s`` before the state in row k of ``movers`` (:func:`_pack_movers`): the
+    first ``moving`` (people, other robots) on the floor at ``xy - vel·back_s`` (m), turned to ``yaw -
+    yaw_rate·back_s`` (rad); the others (doors) only turned."""
     for k in range(rows.shape[0]):
         m = rows[k]
-        mocap_pos[m, 0] = xy[k, 0] - vel[k, 0] * back_s
-        mocap_pos[m, 1] = xy[k, 1] - vel[k, 1] * back_s
-        mocap_pos[m, 2] = 0.0
-        _set_yaw(mocap_quat, m, yaw[k] - yaw_rate[k] * back_s)
-
-
-@njit(cache=True, error_model="numpy")
-def _pose_turners(mocap_quat: np.ndarray, rows: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray,
-                  back_s: float) -> None:
-    """Turn mocap body ``rows[k]`` to ``yaw[k] - yaw_rate[k]·back_s`` (rad) for the (N,) yaws and yaw rates."""
-    for k in range(rows.shape[0]):
-        _set_yaw(mocap_quat, rows[k], yaw[k] - yaw_rate[k] * back_s)
+        if k < moving:
+            mocap_pos[m, 0] = movers[k, 0] - movers[k, 2] * back_s
+            mocap_pos[m, 1] = movers[k, 1] - movers[k, 3] * back_s
+            mocap_pos[m, 2] = 0.0
+        _set_yaw(mocap_quat, m, movers[k, 4] - movers[k, 5] * back_s)
 
 
 @njit(cache=True, error_model="numpy")

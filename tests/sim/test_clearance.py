@@ -6,8 +6,10 @@ import mujoco
 import numpy as np
 
 from simnav.robot import load_robot
-from simnav.sim import SimConfig, Simulator
+from simnav.sim import SimConfig, Simulator, simulator
 from simnav.sim.clearance import ContactClearance
+from simnav.sim.native import STATE
+from simnav.sim.simulator import _NO_SHADOW
 from simnav.world import load_world
 from tests.conftest import box_room_spec
 
@@ -76,3 +78,42 @@ def test_a_scene_outside_its_assumptions_is_never_clear():
     clearance = ContactClearance(model, model.body("robot").id, 1.0)
     assert not clearance.usable
     assert clearance.clear_steps(data, 1, np.zeros(3), np.zeros(3)) == 0
+
+
+def test_the_compiled_motor_ramp_and_its_shadow_change_nothing(monkeypatch):
+    """The motor ramp's stretches run in one compiled call, most of them in a robot-only shadow model
+    (simnav.sim.native); without the shadow, or stepped from Python, the poses after every stretch, the contacts,
+    the scans and the final state are the same to the bit (a robot without wheel encoders: with them, the ramp
+    is stepped from Python)."""
+    world, robot = load_world("office"), load_robot("giraff")
+    robot = robot.model_copy(update={"sensors": [s for s in robot.sensors if s.type == "lidar2d"]})
+    config = SimConfig(pedestrians=6, wanderers=1)
+    compiled_stretches = []
+    ramp_steps = simulator.ramp_steps
+
+    def counted(*args):
+        out = ramp_steps(*args)
+        compiled_stretches.append(out[3])
+        return out
+
+    monkeypatch.setattr(simulator, "ramp_steps", counted)
+    runs = []
+    for variant in ("shadow", "compiled", "python"):
+        with Simulator(world, robot, config, seed=3) as sim:
+            assert sim._native_scene is not None and sim._shadow is not None, "both are available here"
+            if variant != "shadow":
+                sim._native_shadow = _NO_SHADOW
+            if variant == "python":
+                sim._native_scene = None
+            history, events, scans = _drive(sim, 400)
+            if variant == "shadow":
+                assert sum(compiled_stretches) > 1000 and events, "the compiled ramp ran, and contacts were made"
+            state = np.empty(mujoco.mj_stateSize(sim.model, STATE))
+            mujoco.mj_getState(sim.model, sim.data, state, STATE)
+            runs.append((history, events, scans, state, sim.data.qacc.copy(), sim.data.xpos.copy()))
+    for other in runs[1:]:
+        assert other[0] == runs[0][0] and other[1] == runs[0][1]
+        for a, b in zip(other[2], runs[0][2], strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(other[3:], runs[0][3:], strict=True):
+            np.testing.assert_array_equal(a, b)

@@ -45,3 +45,47 @@ def test_lidar_noise_is_numpys_gaussian_noise_and_dropouts(std_m, dropout):
     valid &= (noisy >= 0.02) & (noisy <= 5.6) & np.isfinite(noisy)
     expected = np.where(valid, noisy, 0.0).astype(np.float32)
     np.testing.assert_array_equal(lidar_noise(ranges, np.random.default_rng(4), std_m, dropout, 0.02, 5.6), expected)
+
+
+def test_mujocos_timer_callback_is_put_back_after_each_step(box_room):
+    """While the simulator steps, MuJoCo's stage timers read no clock (simnav.sim.native.quiet_timers); the timer
+    callback in place before is in place again after each step, also when a step fails."""
+    import ctypes
+
+    from simnav.errors import SimnavError
+    from simnav.sim import native
+
+    if not native.MJCB_TIME:
+        pytest.skip("MuJoCo's timer callback is not reachable here")
+    slot = ctypes.c_void_p.from_address(native.MJCB_TIME)
+    before = slot.value
+    with Simulator(box_room, load_robot("giraff", LIDAR_ONLY)) as sim:
+        for _ in range(5):
+            sim.step(0.4, 0.5)
+            assert slot.value == before
+        with pytest.raises(SimnavError):
+            sim.step(math.nan, 0.0)
+        assert slot.value == before
+        sim._capture_due = None  # a failure inside the stepping loop
+        with pytest.raises(TypeError):
+            sim.step(0.4, 0.5)
+        assert slot.value == before
+
+
+def test_the_pose_history_is_a_bounded_deque_of_tuples():
+    from collections import deque
+
+    from simnav.sim.simulator import PoseHistory
+
+    rng = np.random.default_rng(0)
+    history, reference = PoseHistory(64), deque(maxlen=64)
+    for k in range(150):
+        entry = (k, *rng.normal(size=3).tolist())
+        history.append(entry)
+        reference.append(entry)
+        if k in (0, 10, 63, 64, 65, 149):
+            assert list(history) == list(reference) and len(history) == len(reference)
+            for i in (0, len(reference) // 2, len(reference) - 1, -1, -len(reference)):
+                assert history[i] == reference[i] and type(history[i][0]) is int
+    with pytest.raises(IndexError):
+        history[64]
