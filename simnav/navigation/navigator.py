@@ -425,7 +425,7 @@ class ReactiveNavigator3D:
     def _alignment_turn(self, T_odom_base: np.ndarray, xy: np.ndarray, ptr: np.ndarray) -> float:
         """Yaw rate (rad/s) that turns the robot towards the current waypoint's heading, 0 when an obstacle of
         some band lies within that band's turning circle."""
-        if len(points_near(xy, ptr, 0.0, 0.0, self._turn_radii_m)[0]):
+        if not _circles_free(xy, ptr, self._turn_radii_m):
             return 0.0
         yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
         error = se2.wrap_angle(float(self._headings[self._target]) - yaw)
@@ -559,7 +559,7 @@ class ReactiveNavigator3D:
         bearing = abs(math.atan2(float(target_base[1]), float(target_base[0])))
         threshold = cfg.turn_in_place_stop_rad if self._turning else cfg.turn_in_place_start_rad
         radii = self._tight_turn_radii_m if stalled else self._turn_radii_m
-        turning = not direct and bearing > threshold and len(points_near(xy, ptr, 0.0, 0.0, radii)[0]) == 0
+        turning = not direct and bearing > threshold and _circles_free(xy, ptr, radii)
         if self._turning and not turning:
             self._turn_end = (stamp_s, x, y)
         self._turning = turning
@@ -704,6 +704,12 @@ class ReactiveNavigator3D:
 _ND = NDConfig()
 _SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
 _TIGHT_TURN_MARGIN_M = 0.02  # clearance of the turning circle when turning in place is all the robot can do
+
+
+def _circles_free(xy: np.ndarray, ptr: np.ndarray, radii_m: np.ndarray) -> bool:
+    """Whether no obstacle point of any band lies within that band's circle (radius ``radii_m[b]``) around the base
+    origin: the robot can turn in place."""
+    return len(points_near(xy, ptr, 0.0, 0.0, radii_m)[0]) == 0
 
 
 def _target_path_speed(lim: np.ndarray, k_t: int) -> float:

@@ -55,8 +55,7 @@ def test_mujocos_timer_callback_is_put_back_after_each_step(box_room):
     from simnav.errors import SimnavError
     from simnav.sim import native
 
-    if not native.MJCB_TIME:
-        pytest.skip("MuJoCo's timer callback is not reachable here")
+    assert native.MJCB_TIME, "the mujoco package's library exports mjcb_time"
     slot = ctypes.c_void_p.from_address(native.MJCB_TIME)
     before = slot.value
     with Simulator(box_room, load_robot("giraff", LIDAR_ONLY)) as sim:
@@ -70,6 +69,15 @@ def test_mujocos_timer_callback_is_put_back_after_each_step(box_room):
         with pytest.raises(TypeError):
             sim.step(0.4, 0.5)
         assert slot.value == before
+
+
+def test_without_the_timer_callback_quieting_timers_does_nothing(monkeypatch):
+    from simnav.sim import native
+
+    monkeypatch.setattr(native, "_TIMER_SLOT", None)
+    previous = native.quiet_timers()
+    assert previous is None
+    native.restore_timers(previous)  # nothing to put back, no error
 
 
 def test_the_pose_history_is_a_bounded_deque_of_tuples():
