@@ -7,7 +7,7 @@ from one seeded generator, resets included, after a warm-up that compiles or loa
 each version's median steps/s and the median of the paired speed ratios B/A, which the swings cancel out of.
 
     python scripts/bench_env_ab.py BASE_REV [NEW_REV] [--rounds 60] [--chunk 200] [--env simnav/OfficeNav-v0]
-                                   [--core 1]
+                                   [--env-kwargs '{"sensors": "lidar+depth"}'] [--core 1]
 
 ``NEW_REV`` defaults to the working tree (not an export: uncommitted changes count).
 """
@@ -24,10 +24,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKER = """
-import sys, time
+import json, sys, time
 import numpy as np
 import simnav, gymnasium as gym
-env = gym.make(sys.argv[1])
+env = gym.make(sys.argv[1], **json.loads(sys.argv[2]))
 env.reset(seed=0)
 actions = iter(np.random.default_rng(0).uniform(-1, 1, (10**7, 2)).astype(np.float32))
 def run(n):
@@ -52,9 +52,10 @@ def export(rev: str, into: Path) -> Path:
     return into
 
 
-def start(tree: Path, env_id: str, core: int) -> subprocess.Popen:
-    """A worker stepping ``env_id`` with simnav imported from ``tree``, ready for chunks."""
-    cmd = [sys.executable, "-c", WORKER, env_id]
+def start(tree: Path, env_id: str, env_kwargs: str, core: int) -> subprocess.Popen:
+    """A worker stepping ``env_id`` made with the JSON keyword arguments ``env_kwargs``, with simnav imported from
+    ``tree``, ready for chunks."""
+    cmd = [sys.executable, "-c", WORKER, env_id, env_kwargs]
     if hasattr(os, "sched_setaffinity"):
         cmd = ["taskset", "-c", str(core), *cmd]
     # run in the tree: ``python -c`` puts the working directory first on the import path
@@ -73,12 +74,13 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=60)
     parser.add_argument("--chunk", type=int, default=200, help="env steps per chunk")
     parser.add_argument("--env", default="simnav/OfficeNav-v0")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON keyword arguments of gym.make")
     parser.add_argument("--core", type=int, default=1 if (os.cpu_count() or 1) > 1 else 0)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         trees = [export(args.base, Path(tmp) / "a"), export(args.new, Path(tmp) / "b") if args.new else ROOT]
         print(f"starting the workers (the first start in a fresh export compiles the kernels) on core {args.core}")
-        workers = [start(tree, args.env, args.core) for tree in trees]
+        workers = [start(tree, args.env, args.env_kwargs, args.core) for tree in trees]
         times: list[list[float]] = [[], []]
         for r in range(args.rounds):
             for j in ((0, 1) if r % 2 == 0 else (1, 0)):

@@ -55,21 +55,42 @@ def depth_noise(
 
     Axial noise grows with the square of depth, sigma_z = k z^2 (Khoshelham & Elberink 2012); the depth is then
     quantised in disparity, i.e. with a step ``quantum_m * z^2`` (1 mm at 1 m for the default); random pixels drop
-    out.
+    out. Returns a new (H, W) float32 image.
     """
-    z = depth_m.astype(np.float32)  # a copy
-    valid = z > 0
-    z2 = z * z
-    if k_per_m > 0:
-        z += rng.standard_normal(z.shape, dtype=np.float32) * np.float32(k_per_m) * z2
-    if quantum_m > 0:
-        step = np.maximum(np.float32(quantum_m) * z2, np.float32(1e-9))
-        z = np.round(z / step) * step
-    if dropout_prob > 0:
-        valid &= rng.random(z.shape, dtype=np.float32) >= dropout_prob
-    valid &= np.isfinite(z) & (z > 0)
-    z[~valid] = 0
-    return z
+    z = np.ascontiguousarray(depth_m, dtype=np.float32)
+    # the draws: a standard normal per pixel for the noise, then a uniform per pixel for the dropouts
+    normals = rng.standard_normal(z.shape, dtype=np.float32) if k_per_m > 0 else _NONE_F32
+    uniforms = rng.random(z.shape, dtype=np.float32) if dropout_prob > 0 else _NONE_F32
+    return _noisy_depth(z, normals, np.float32(k_per_m), np.float32(quantum_m), uniforms, np.float32(dropout_prob))
+
+
+_NONE_F32 = np.zeros((0, 0), dtype=np.float32)
+
+
+@njit(cache=True, error_model="numpy")
+def _noisy_depth(z: np.ndarray, normals: np.ndarray, k: np.float32, quantum: np.float32, uniforms: np.ndarray,
+                 dropout: np.float32) -> np.ndarray:
+    """(H, W) float32 ``z + k z^2 normals``, rounded to the nearest multiple of ``quantum z^2``, 0 where ``z`` is 0,
+    the pixel dropped (its uniform draw < ``dropout``) or the result not finite and positive; every operation in
+    float32. Empty ``normals`` or ``uniforms``: no noise, no dropouts; ``quantum`` 0: no rounding."""
+    h, w = z.shape
+    out = np.empty((h, w), dtype=np.float32)
+    tiny = np.float32(1e-9)
+    for i in range(h):
+        for j in range(w):
+            v = z[i, j]
+            valid = v > 0
+            v2 = v * v
+            if normals.shape[0]:
+                v = v + normals[i, j] * k * v2
+            if quantum > 0:
+                step = max(quantum * v2, tiny)
+                v = np.float32(np.rint(v / step)) * step
+            if uniforms.shape[0]:
+                valid = valid and uniforms[i, j] >= dropout
+            valid = valid and np.isfinite(v) and v > 0
+            out[i, j] = v if valid else np.float32(0)
+    return out
 
 
 def grazing_mask(depth_m: np.ndarray, K: np.ndarray, max_angle_rad: float) -> np.ndarray:
@@ -84,19 +105,25 @@ def grazing_mask(depth_m: np.ndarray, K: np.ndarray, max_angle_rad: float) -> np
         depth_m: (H, W) z-depth, m (0 = invalid).
         K: (3, 3) intrinsics with fx = fy = f.
     """
-    z = depth_m.astype(np.float32, copy=False)
-    f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
+    z = np.ascontiguousarray(depth_m, dtype=np.float32)
+    f, cx, cy = (np.float32(v) for v in (K[0, 0], K[0, 2], K[1, 2]))
+    return _grazing(z, f, cx, cy, np.float32(np.cos(max_angle_rad) ** 2))
+
+
+@njit(cache=True, error_model="numpy")
+def _grazing(z: np.ndarray, f: np.float32, cx: np.float32, cy: np.float32, cos2: np.float32) -> np.ndarray:
+    """:func:`grazing_mask` of a contiguous float32 image, in float32 with central differences."""
     h, w = z.shape
-    z_u = np.zeros_like(z)
-    z_v = np.zeros_like(z)
-    z_u[:, 1:-1] = (z[:, 2:] - z[:, :-2]) * 0.5
-    z_v[1:-1, :] = (z[2:, :] - z[:-2, :]) * 0.5
-    x = ((np.arange(w, dtype=np.float32) - cx) / f)[None, :]
-    y = ((np.arange(h, dtype=np.float32) - cy) / f)[:, None]
-    n_z = x * z_u + y * z_v + z / f
-    n2 = z_u * z_u + z_v * z_v + n_z * n_z
-    zf2 = (z / f) ** 2
-    grazing = zf2 < np.float32(np.cos(max_angle_rad) ** 2) * (1 + x * x + y * y) * n2
-    grazing[:, [0, -1]] = False
-    grazing[[0, -1], :] = False
-    return grazing
+    out = np.zeros((h, w), dtype=np.bool_)
+    half, one = np.float32(0.5), np.float32(1)
+    for i in range(1, h - 1):
+        y = (np.float32(i) - cy) / f
+        for j in range(1, w - 1):
+            x = (np.float32(j) - cx) / f
+            z_u = (z[i, j + 1] - z[i, j - 1]) * half
+            z_v = (z[i + 1, j] - z[i - 1, j]) * half
+            zf = z[i, j] / f
+            n_z = x * z_u + y * z_v + zf
+            n2 = z_u * z_u + z_v * z_v + n_z * n_z
+            out[i, j] = zf * zf < cos2 * (one + x * x + y * y) * n2
+    return out

@@ -19,6 +19,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from simnav.geometry.camera import R_MUJOCOCAM_OPTICAL, PinholeCamera
 from simnav.robot.mjcf import R_BODY_MJCAM
@@ -221,6 +222,19 @@ def _probe_gl() -> str:
         return f"{type(err).__name__}: {err}{hint}"
 
 
+def _render_context(model: mujoco.MjModel, multisample: bool) -> mujoco.MjrContext:
+    """A MuJoCo render context for the current GL context; without ``multisample`` its offscreen buffer has one
+    sample per pixel. Depth and segmentation are rendered without multisampling either way (the same image), but a
+    multisampled buffer costs a resolve pass on every read, so only colour images, which it anti-aliases, keep it."""
+    samples = model.vis.quality.offsamples
+    if not multisample:
+        model.vis.quality.offsamples = 0
+    try:
+        return mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
+    finally:
+        model.vis.quality.offsamples = samples
+
+
 class _GLBackend:
     """Offscreen OpenGL rendering of one fixed camera."""
 
@@ -230,11 +244,12 @@ class _GLBackend:
         self._w, self._h = params.width, params.height
         self._ctx = gl_context.GLContext(model.vis.global_.offwidth, model.vis.global_.offheight)
         self._ctx.make_current()
-        self._mjr = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
+        self._mjr = _render_context(model, multisample=params.rgb)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._mjr)
         self._mjr.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._model = model
         self._scene = mujoco.MjvScene(model, maxgeom=2000)
+        self._table, self._table_key = np.zeros(0, dtype=np.int32), None
         self._option = mujoco.MjvOption()
         self._option.geomgroup[GROUP_ROBOT] = 0  # the camera does not see its own robot (as the lidars)
         self._cam = mujoco.MjvCamera()
@@ -263,9 +278,8 @@ class _GLBackend:
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
         mujoco.mjr_render(self._rect, self._scene, self._mjr)
         mujoco.mjr_readPixels(self._seg, self._zbuf, self._rect, self._mjr)
-        depth = self._d / (self._zbuf[::-1] + self._c)  # float32 keeps ~1e-7 relative precision in reverse-Z
-        body_id = self._body_ids(self._seg[::-1])
-        depth[(body_id < 0) | (depth >= self._far * 0.999)] = 0.0
+        depth, body_id = _depth_and_bodies(self._zbuf, self._seg, self._body_table(), self._c, self._d,
+                                           np.float32(self._far * 0.999))
         rgb = None
         if with_rgb:
             flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
@@ -276,14 +290,22 @@ class _GLBackend:
             rgb = np.ascontiguousarray(rgb[::-1])
         return depth, body_id, rgb
 
-    def _body_ids(self, seg: np.ndarray) -> np.ndarray:
-        seg = seg.astype(np.int32)
-        segid = seg[..., 0] | (seg[..., 1] << 8) | (seg[..., 2] << 16)
-        table = np.full(self._scene.ngeom + 2, -1, dtype=np.int32)
-        for g in self._scene.geoms[: self._scene.ngeom]:
-            if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
-                table[g.segid + 1] = self._model.geom_bodyid[g.objid]
-        return table[np.minimum(segid, len(table) - 1)]
+    def _body_table(self) -> np.ndarray:
+        """(ngeom + 2,) int32: the body id of the scene's geom with segmentation id s at s + 1, -1 elsewhere.
+
+        The scene holds the same geoms in the same order from frame to frame (the model's visibility settings do not
+        change while it runs), so the table is rebuilt only when the scene's geom count or its last geom changes."""
+        scene = self._scene
+        last = scene.geoms[scene.ngeom - 1] if scene.ngeom else None
+        key = (scene.ngeom, None if last is None else (int(last.objtype), int(last.objid), int(last.segid)))
+        if key != self._table_key:
+            table = np.full(scene.ngeom + 2, -1, dtype=np.int32)
+            geom = mujoco.mjtObj.mjOBJ_GEOM
+            for g in scene.geoms[: scene.ngeom]:
+                if g.segid >= 0 and g.objtype == geom:
+                    table[g.segid + 1] = self._model.geom_bodyid[g.objid]
+            self._table, self._table_key = table, key
+        return self._table
 
     def close(self) -> None:
         if self._ctx is not None:
@@ -291,3 +313,25 @@ class _GLBackend:
             self._mjr.free()
             self._ctx.free()
             self._ctx = None
+
+
+@njit(cache=True, error_model="numpy")
+def _depth_and_bodies(zbuf: np.ndarray, seg: np.ndarray, table: np.ndarray, c: np.float32, d: np.float32,
+                      far: np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """Metric z-depth (H, W) float32 and body ids (H, W) int32, row 0 at the top, from OpenGL's (H, W) depth buffer
+    and (H, W, 3) segmentation colours (row 0 at the bottom): depth = d / (zbuf + c) in float32 (~1e-7 relative
+    precision in reverse-Z), body = ``table[min(colour id, len - 1)]``; depth 0 where no body is seen or the depth
+    reaches ``far``."""
+    h, w = zbuf.shape
+    depth = np.empty((h, w), dtype=np.float32)
+    body = np.empty((h, w), dtype=np.int32)
+    last = table.shape[0] - 1
+    for i in range(h):
+        src = h - 1 - i
+        for j in range(w):
+            segid = np.int32(seg[src, j, 0]) | (np.int32(seg[src, j, 1]) << 8) | (np.int32(seg[src, j, 2]) << 16)
+            b = table[min(segid, last)]
+            z = d / (zbuf[src, j] + c)
+            body[i, j] = b
+            depth[i, j] = np.float32(0) if b < 0 or z >= far else z
+    return depth, body
