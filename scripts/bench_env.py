@@ -130,8 +130,6 @@ def main() -> None:
         table.add_row(f"{label} x 2, OfficeNav-v0 default, lidar", f"{rate:.0f}", "")
     console.print(table)
 
-    # one software-rendering thread per worker in both runs, so that 1 worker does not render on 2 cores
-    os.environ["LP_NUM_THREADS"] = "1"
     batch = Table("workers", "simulated s / wall s", "wall time (s)", "cores used",
                   title=f"batch missions: {args.missions} office missions of {args.mission_seconds:g} s simulated "
                         f"(default mission: 10 people, lidar + depth camera)")

@@ -11,6 +11,11 @@ import os
 # Headless rendering through EGL; without an EGL library, MuJoCo's GL is disabled (it would fail at import) and
 # depth cameras fall back to ray casting. Must precede any mujoco import.
 os.environ.setdefault("MUJOCO_GL", "egl" if ctypes.util.find_library("EGL") else "disable")
+# Software rendering (Mesa's llvmpipe, where there is no GPU) rasterises in the thread that renders instead of in
+# helper threads: as fast for the small images of simulated cameras, never oversubscribes the cores of parallel
+# workers, and keeps clear of the heap corruption that crashed workers in llvmpipe's threaded readback (README,
+# batch runs). Ignored by GPU drivers; set LP_NUM_THREADS yourself to choose otherwise.
+os.environ.setdefault("LP_NUM_THREADS", "0")
 
 __version__ = "0.1.0"
 

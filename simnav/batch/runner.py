@@ -89,10 +89,8 @@ def _run_pool(jobs: Sequence[Job], todo: list[int], workers: int, progress: Prog
               function: Callable[[Job], dict[str, Any]], rows: list[dict[str, Any] | None]) -> list[int]:
     """Run the jobs ``todo`` in one pool, filling ``rows``; returns the jobs left unfinished by a dead worker."""
     context = multiprocessing.get_context("spawn")
-    render_threads = max(1, (os.cpu_count() or 1) // workers)
     lost: list[int] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker,
-                             initargs=(render_threads,)) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
         pending = {pool.submit(function, jobs[k]): k for k in todo}
         try:
             while pending:
@@ -108,11 +106,6 @@ def _run_pool(jobs: Sequence[Job], todo: list[int], workers: int, progress: Prog
             pool.shutdown(wait=False, cancel_futures=True)
             raise
     return sorted(lost)
-
-
-def _init_worker(render_threads: int) -> None:
-    """A share of the cores for software (llvmpipe) rendering, so that workers do not oversubscribe them."""
-    os.environ.setdefault("LP_NUM_THREADS", str(render_threads))
 
 
 # --------------------------------------------------------------------------------------------------------- Ray
@@ -147,8 +140,7 @@ def _run_ray(jobs: Sequence[Job], workers: int | None, address: str,
 
 
 def _ray_job(job: Job) -> dict[str, Any]:
-    """:func:`run_job` in a Ray worker (1 CPU): software rendering on one thread unless the cluster says otherwise."""
-    os.environ.setdefault("LP_NUM_THREADS", "1")
+    """:func:`run_job` in a Ray worker (1 CPU; importing simnav keeps software rendering in the rendering thread)."""
     return run_job(job)
 
 

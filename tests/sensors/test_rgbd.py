@@ -131,6 +131,33 @@ def test_without_opengl_cameras_fall_back_to_ray_casting_and_say_so_once():
     assert out.stderr.count("fall back to ray casting") == 1
 
 
+def test_software_rendering_stays_in_the_rendering_thread():
+    """simnav keeps Mesa's llvmpipe from starting rasteriser threads (LP_NUM_THREADS=0 unless the user sets it):
+    after GL frames of both cameras the process has no llvmpipe threads, and a user's setting is kept."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import glob, os, simnav\n"
+        "from simnav.robot import load_robot\n"
+        "from simnav.sim import SimConfig, Simulator\n"
+        "from tests.conftest import box_room_spec\n"
+        "with Simulator(box_room_spec(), load_robot('minibot'), SimConfig(depth_backend='gl')) as sim:\n"
+        "    sim.step(0.0, 0.0)\n"
+        "    assert sim.capture_now('depth').depth_m.any()\n"
+        "    names = [open(f).read().strip() for f in glob.glob('/proc/self/task/*/comm')]\n"
+        "print(os.environ['LP_NUM_THREADS'], sum(n.startswith('llvmpipe') for n in names))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
+                         check=True)
+    assert out.stdout.split() == ["0", "0"]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**env, "LP_NUM_THREADS": "2"}, timeout=300, check=True)
+    assert out.stdout.split()[0] == "2"
+
+
 @pytest.mark.parametrize("backend", ["gl", "raycast"])
 def test_the_camera_does_not_see_its_own_robot(backend):
     # Rhodon's Kinect looks down over its outstretched arm: its own body must not become an obstacle
