@@ -13,7 +13,10 @@ reset whenever one ends (resets are part of the time). Prints the median steps/s
 
 Targets: >= 3000 steps/s lidar only in one process, >= 200 steps/s with depth, >= 1.8x from 1 to 2 workers.
 
-    python scripts/bench_env.py [--steps 400] [--repeats 5] [--missions 4] [--mission-seconds 20]
+The speed of a shared machine swings within minutes, so ``--runs N`` measures the single envs N times, round after
+round (a fresh env each time), and prints the median and the range of the N medians, and how many meet the target.
+
+    python scripts/bench_env.py [--steps 400] [--repeats 5] [--runs 1] [--missions 4] [--mission-seconds 20]
 """
 
 from __future__ import annotations
@@ -106,10 +109,23 @@ def verdict(value: float, target: float) -> str:
     return f"[green]meets {target:g}[/]" if value >= target else f"[red]misses {target:g}[/]"
 
 
+def spread(values: list[float]) -> str:
+    """'median' of one value, 'median (min-max)' of several."""
+    med = statistics.median(values)
+    return f"{med:.0f}" if len(values) == 1 else f"{med:.0f} ({min(values):.0f}-{max(values):.0f})"
+
+
+def verdict_runs(values: list[float], target: float) -> str:
+    """The verdict on the median run, with how many runs met the target when there are several."""
+    out = verdict(statistics.median(values), target)
+    return out if len(values) == 1 else f"{out} ({sum(v >= target for v in values)}/{len(values)} runs)"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=400, help="steps per timed run")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median)")
+    parser.add_argument("--runs", type=int, default=1, help="rounds of the single-env configurations")
     parser.add_argument("--missions", type=int, default=4, help="missions per batch run")
     parser.add_argument("--mission-seconds", type=float, default=20.0, help="simulated seconds per mission")
     args = parser.parse_args()
@@ -118,13 +134,16 @@ def main() -> None:
     console.print(f"{os.cpu_count()} CPUs, load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
                   f"(1 / 5 / 15 min) before the runs; MUJOCO_GL={os.environ.get('MUJOCO_GL')}")
 
-    table = Table("configuration", "steps/s", "vs target", title=f"env steps/s (median of {args.repeats} x "
-                                                                   f"{args.steps} steps, seed {SEED})")
-    single = {}
-    for name, env_id, kwargs in SINGLE:
-        single[name] = rate = bench_single(env_id, kwargs, args.steps, args.repeats)
+    runs = max(1, args.runs)
+    what = f"median of {args.repeats} x {args.steps} steps" + (f"; median and range of {runs} runs" if runs > 1 else "")
+    table = Table("configuration", "steps/s", "vs target", title=f"env steps/s ({what}, seed {SEED})")
+    rates: dict[str, list[float]] = {name: [] for name, _, _ in SINGLE}
+    for _ in range(runs):
+        for name, env_id, kwargs in SINGLE:
+            rates[name].append(bench_single(env_id, kwargs, args.steps, args.repeats))
+    for name, _, _ in SINGLE:
         target = TARGET_DEPTH if "depth" in name else TARGET_LIDAR
-        table.add_row(name, f"{rate:.0f}", verdict(rate, target))
+        table.add_row(name, spread(rates[name]), verdict_runs(rates[name], target))
     for mode, label in (("sync", "SyncVectorEnv"), ("async", "AsyncVectorEnv (spawn)")):
         rate = bench_vector(mode, args.steps, args.repeats)
         table.add_row(f"{label} x 2, OfficeNav-v0 default, lidar", f"{rate:.0f}", "")
