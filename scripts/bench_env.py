@@ -13,15 +13,21 @@ reset whenever one ends (resets are part of the time). Prints the median steps/s
 
 Targets: >= 3000 steps/s lidar only in one process, >= 200 steps/s with depth, >= 1.8x from 1 to 2 workers.
 
-The speed of a shared machine swings within minutes, so ``--runs N`` measures the single envs N times, round after
-round (a fresh env each time), and prints the median and the range of the N medians, and how many meet the target.
+The single envs run pinned to one core (``--core``, default the last; ``--core -1``: wherever the scheduler puts the
+process), as one env is one thread: on this 2-core machine the scheduler otherwise moves it between the cores
+whenever other work wakes up, and single runs then dip by up to 40 %. The vector envs and the batch run on all
+cores. The speed of a shared machine also swings within minutes, so ``--runs N`` measures the single envs N times,
+round after round (a fresh env each time), and prints the median and the range of the N medians, and how many
+meet the target.
 
-    python scripts/bench_env.py [--steps 400] [--repeats 5] [--runs 1] [--missions 4] [--mission-seconds 20]
+    python scripts/bench_env.py [--steps 400] [--repeats 5] [--runs 1] [--core C] [--missions 4]
+                                [--mission-seconds 20]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import resource
 import statistics
@@ -109,6 +115,20 @@ def verdict(value: float, target: float) -> str:
     return f"[green]meets {target:g}[/]" if value >= target else f"[red]misses {target:g}[/]"
 
 
+@contextlib.contextmanager
+def pinned(core: int):
+    """This process on ``core`` only (no change for -1 or where affinity cannot be set), restored afterwards."""
+    if core < 0 or not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {core})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 def spread(values: list[float]) -> str:
     """'median' of one value, 'median (min-max)' of several."""
     med = statistics.median(values)
@@ -126,6 +146,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=400, help="steps per timed run")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median)")
     parser.add_argument("--runs", type=int, default=1, help="rounds of the single-env configurations")
+    parser.add_argument("--core", type=int, default=(os.cpu_count() or 1) - 1,
+                        help="core the single envs run on (-1: not pinned)")
     parser.add_argument("--missions", type=int, default=4, help="missions per batch run")
     parser.add_argument("--mission-seconds", type=float, default=20.0, help="simulated seconds per mission")
     args = parser.parse_args()
@@ -136,11 +158,14 @@ def main() -> None:
 
     runs = max(1, args.runs)
     what = f"median of {args.repeats} x {args.steps} steps" + (f"; median and range of {runs} runs" if runs > 1 else "")
-    table = Table("configuration", "steps/s", "vs target", title=f"env steps/s ({what}, seed {SEED})")
+    where = f"core {args.core}" if args.core >= 0 else "not pinned"
+    table = Table("configuration", "steps/s", "vs target", title=f"env steps/s ({what}, seed {SEED}; single envs: "
+                                                                   f"{where})")
     rates: dict[str, list[float]] = {name: [] for name, _, _ in SINGLE}
-    for _ in range(runs):
-        for name, env_id, kwargs in SINGLE:
-            rates[name].append(bench_single(env_id, kwargs, args.steps, args.repeats))
+    with pinned(args.core):
+        for _ in range(runs):
+            for name, env_id, kwargs in SINGLE:
+                rates[name].append(bench_single(env_id, kwargs, args.steps, args.repeats))
     for name, _, _ in SINGLE:
         target = TARGET_DEPTH if "depth" in name else TARGET_LIDAR
         table.add_row(name, spread(rates[name]), verdict_runs(rates[name], target))
