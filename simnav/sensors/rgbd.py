@@ -293,11 +293,14 @@ class _GLBackend:
     def _body_table(self) -> np.ndarray:
         """(ngeom + 2,) int32: the body id of the scene's geom with segmentation id s at s + 1, -1 elsewhere.
 
-        The scene holds the same geoms in the same order from frame to frame (the model's visibility settings do not
-        change while it runs), so the table is rebuilt only when the scene's geom count or its last geom changes."""
-        scene = self._scene
+        The scene holds the same geoms in the same order from frame to frame while what decides a geom's visibility
+        stays (groups, colours' alpha, materials), so the table is rebuilt only when one of those, the scene's geom
+        count or its last geom changes."""
+        scene, model = self._scene, self._model
         last = scene.geoms[scene.ngeom - 1] if scene.ngeom else None
-        key = (scene.ngeom, None if last is None else (int(last.objtype), int(last.objid), int(last.segid)))
+        visibility = hash((model.geom_group.tobytes(), model.geom_rgba[:, 3].tobytes(), model.geom_matid.tobytes(),
+                           model.mat_rgba[:, 3].tobytes()))
+        key = (scene.ngeom, visibility, None if last is None else (int(last.objtype), int(last.objid), int(last.segid)))
         if key != self._table_key:
             table = np.full(scene.ngeom + 2, -1, dtype=np.int32)
             geom = mujoco.mjtObj.mjOBJ_GEOM

@@ -68,6 +68,33 @@ def test_backends_agree(box_room):
     assert (gl.body_id == rc.body_id).mean() > 0.98
 
 
+def test_body_ids_follow_a_geom_hidden_while_running():
+    """The GL backend keeps its segmentation table while the scene's geoms stay the same. Hiding a geom (alpha 0)
+    while the simulator runs shifts the segmentation ids of the geoms after it: the ids must come out as from a
+    camera that had the geom hidden from the start."""
+    world = box_room_spec(roadmap=dict(nodes=[[4.6, 2.0], [5.5, 1.0], [5.5, 3.0]], edges=[[0, 1], [0, 2]]),
+                          agents=dict(pedestrians=1))
+    robot = load_robot("minibot", IDEAL)
+    frames = []
+    for hide_from_start in (False, True):
+        with Simulator(world, robot, SimConfig(depth_backend="gl", pedestrians=1), seed=0) as sim:
+            model, person = sim.model, sim.index.pedestrian_body[0]
+            # a visible geom of the scenery that comes before the person's geoms in the scene
+            scenery = max(g for g in range(model.ngeom) if model.geom_bodyid[g] == 0 and model.geom_rgba[g, 3] > 0
+                          and model.geom_group[g] < 3 and g < np.flatnonzero(model.geom_bodyid == person)[0])
+            if hide_from_start:
+                model.geom_rgba[scenery, 3] = 0.0
+            for _ in range(20):
+                sim.step(0.0, 0.0)
+            before = sim.capture_now("depth")
+            model.geom_rgba[scenery, 3] = 0.0
+            frames.append((before, sim.capture_now("depth")))
+    (shown, hidden_now), (_, hidden_throughout) = frames
+    assert (shown.body_id == person).sum() > 50 and (hidden_now.body_id == person).sum() > 50
+    np.testing.assert_array_equal(hidden_now.body_id, hidden_throughout.body_id)
+    np.testing.assert_array_equal(hidden_now.depth_m, hidden_throughout.depth_m)
+
+
 def test_noise_grows_with_depth_and_never_nan(box_room):
     frame, _ = frame_in(box_room, ["sensors.depth.dropout_prob=0.05", "sensors.depth.grazing_angle_deg=89.9"])
     ideal, _ = frame_in(box_room, IDEAL)
