@@ -67,12 +67,9 @@ navigator's ``waypoint_heading_tolerance_rad``; it turns in place there): a robo
 off its axis had no path left through it, m."""
 
 DOOR_APPROACH_M = 0.6
-"""A narrow node is approached through a waypoint this far before it, towards the previous node of the route (at
-most as far as that node, half way if it is narrow too; a previous waypoint within ``NARROW_NODE_TOLERANCE_M`` of
-it gives way to it), and left
-through one as far after it (at most half way to the next node), so that the robot lines up with a doorway instead
-of cutting into it at an angle, m. Closer than this to the doorway, the robot's footprint reaches the wall beside
-the doorway when it stands on the approach at an angle."""
+"""A narrow node is approached through a waypoint this far before it, towards the previous node of the route (and
+left through one as far after it), so that the robot lines up with a doorway instead of cutting into it at an
+angle, m (at most half the distance to that node)."""
 
 
 class MissionSettings(FrozenModel):
@@ -584,19 +581,15 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(p, True, free_m)
             continue
         if i > 0:
-            q = _towards(p, nodes_xy[route[i - 1]], 0.5 if narrow[route[i - 1]] else 1.0)
-            if np.linalg.norm(q - xy[-1]) <= NARROW_NODE_TOLERANCE_M:
-                for column in (xy, skip, near, heading):  # the approach waypoint takes the previous one's place
-                    column.pop()
-            else:
-                # the node before counts as passed only close by: passed from 1 m away, cutting towards the
-                # approach waypoint, a robot can come to the wrong side of an open door leaf, with no path left
-                near[-1] = min(near[-1], NARROW_NODE_TOLERANCE_M)
+            # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach
+            # waypoint, a robot can come to the wrong side of an open door leaf, with no path left around it
+            near[-1] = min(near[-1], NARROW_NODE_TOLERANCE_M)
+            q = _towards(p, nodes_xy[route[i - 1]])
             facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
         add(p, False, NARROW_NODE_TOLERANCE_M)
         if i < len(route) - 1:
-            add(_towards(p, nodes_xy[route[i + 1]], 0.5), True, NARROW_NODE_TOLERANCE_M)
+            add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
     return (np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near),
             np.array(heading, dtype=np.float64))
 
@@ -619,10 +612,10 @@ def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray,
     return list(route[start:])
 
 
-def _towards(p: np.ndarray, q: np.ndarray, most: float) -> np.ndarray:
-    """The point ``DOOR_APPROACH_M`` from p towards q (at most the fraction ``most`` of the way), m."""
+def _towards(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The point ``DOOR_APPROACH_M`` from p towards q (at most half way), m."""
     d = float(np.linalg.norm(q - p))
-    return p + (q - p) * (min(DOOR_APPROACH_M, most * d) / d) if d > 0 else p.copy()
+    return p + (q - p) * (min(DOOR_APPROACH_M, 0.5 * d) / d) if d > 0 else p.copy()
 
 
 def _incident_kind(kind: str, other: str) -> str:

@@ -177,24 +177,13 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     # the approach waypoint is passed facing the doorway (+y); the others at any heading
     np.testing.assert_allclose(heading[2], np.pi / 2)
     assert np.isnan(np.delete(heading, 2)).all()
-    # a route starting in the doorway has no approach before it
+    # at most half way to a close neighbour; a route starting in the doorway has no approach before it
     xy, skip, _, heading = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
     np.testing.assert_allclose(xy, [[3, 0], [3, DOOR_APPROACH_M], [3, 2], [3, 2.5]])
     assert np.isnan(heading).all()
-    # a close previous node (0.5 m) is the approach itself: never nearer the doorway than that, where the robot's
-    # footprint would reach the wall beside it; the way out goes at most half way to a close next node
-    at_3 = np.array([False, False, False, True, False])
-    xy, skip, near, heading = route_waypoints(nodes, [4, 3, 2], at_3, 1.0)
-    np.testing.assert_allclose(xy, [[3, 2.5], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])
-    assert skip.tolist() == [False, False, True, True] and near[0] == DOOR_APPROACH_TOLERANCE_M
-    np.testing.assert_allclose(heading[0], -np.pi / 2)
-    xy, _, _, _ = route_waypoints(nodes, [2, 3, 4], at_3, 1.0)
-    np.testing.assert_allclose(xy, [[3, 0], [3, 2 - DOOR_APPROACH_M], [3, 2], [3, 2.25], [3, 2.5]])
-    # 0.75 m away: the approach at DOOR_APPROACH_M takes the place of the node 0.15 m behind it
-    nodes_far = np.array([[3.0, -2.0], [3.0, -0.75], [3.0, 0.0], [3.0, 2.0]])
-    xy, _, _, heading = route_waypoints(nodes_far, [0, 1, 2, 3], np.array([False, False, True, False]), 1.0)
-    np.testing.assert_allclose(xy, [[3, -2], [3, -DOOR_APPROACH_M], [3, 0], [3, DOOR_APPROACH_M], [3, 2]])
-    np.testing.assert_allclose(heading[1], np.pi / 2)
+    xy, _, _, heading = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
+    np.testing.assert_allclose(xy, [[3, 2.5], [3, 2.25], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])
+    np.testing.assert_allclose(heading[1], -np.pi / 2)
 
 
 def test_an_intervention_sets_the_robot_down_past_doorways():
