@@ -68,9 +68,6 @@ class NavigatorConfig:
         waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
         waypoint_heading_tolerance_rad: a waypoint given a heading counts as passed only once the robot faces that
             heading within this; until then it turns in place there (when its turning circle is free), rad.
-        waypoint_reapproach_m: a waypoint passed at its heading (a doorway's approach) is the target again when the
-            robot falls back farther than this from it before it reaches the next (pushed back or round by people),
-            so that the doorway is approached squarely again, m.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
@@ -123,7 +120,6 @@ class NavigatorConfig:
     target_allowed_distance_m: float = 0.3
     waypoint_allowed_distance_m: float = 1.0
     waypoint_heading_tolerance_rad: float = math.radians(20.0)
-    waypoint_reapproach_m: float = 0.5
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
     slow_down_distance_m: float = 0.6
@@ -302,7 +298,6 @@ class ReactiveNavigator3D:
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
         self._headings, self._aligning = heading, False
         self._best_distance, self._best_distance_stamp_s = math.inf, None
-        self._progress_target = -1
         self._blocked_since_s = None
         self._turning, self._turn_end = False, None
         self._seam_side = 0
@@ -337,7 +332,6 @@ class ReactiveNavigator3D:
         if len(self._waypoints) == 0 or self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached" if self.goal_reached else "idle")
         self._remember_pose(stamp_s, T_odom_base)
-        self._reapproach(T_odom_base)
         self._advance_waypoints(T_odom_base)
         if self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached")
@@ -423,18 +417,6 @@ class ReactiveNavigator3D:
                 break
             self._pass_waypoint()
 
-    def _reapproach(self, T_odom_base: np.ndarray) -> None:
-        """Target the waypoint just passed again if it has a heading and the robot has fallen back from it: farther
-        than ``waypoint_reapproach_m`` from it, and farther from the current (unskippable) waypoint than it is."""
-        k = self._target - 1
-        if k < 0 or self._target >= len(self._waypoints) or self._allow_skip[self._target] \
-                or not np.isfinite(self._headings[k]):
-            return
-        xy, passed, current = T_odom_base[:2, 2], self._waypoints[k], self._waypoints[self._target]
-        if np.linalg.norm(passed - xy) > self.config.waypoint_reapproach_m and \
-                np.linalg.norm(current - xy) > np.linalg.norm(current - passed):
-            self._target = k  # (progress still counts towards the waypoint ahead: see _update_stuck)
-
     def _pass_waypoint(self) -> None:
         self._target += 1
         self._aligning = False
@@ -500,11 +482,10 @@ class ReactiveNavigator3D:
         return self._goal_blocked_steps >= self.config.blocked_confirm_steps
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
-        """Progress towards the furthest waypoint aimed at so far (a route may lead away from the goal for a while;
-        going back to a waypoint to approach the next one again does not count as progress)."""
-        if self._target > self._progress_target:
+        """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""
+        if self._target != self._progress_target:
             self._progress_target, self._best_distance_stamp_s = self._target, None
-        d = float(np.linalg.norm(self._waypoints[self._progress_target] - T_odom_base[:2, 2]))
+        d = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
         if self._best_distance_stamp_s is None or d < self._best_distance - self.config.stuck_progress_m:
             self._best_distance, self._best_distance_stamp_s = d, stamp_s
 

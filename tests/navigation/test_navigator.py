@@ -291,34 +291,6 @@ def test_a_waypoint_with_a_heading_is_passed_facing_it_then_the_doorway_behind_i
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
 
-def test_a_robot_pushed_back_from_a_doorway_approaches_it_again(cache_dir) -> None:
-    # the doorway of the test above; the approach waypoint (2, 0.5) is passed facing +y, then the robot is found
-    # 0.8 m back and to the side (pushed by people): the approach waypoint is the target again, and only then
-    obstacles = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
-
-    def pts(T):
-        return np.column_stack([se2.transform_points(se2.inverse(T), obstacles[:, :2]), obstacles[:, 2]])
-
-    nav = make_nav(cache_dir)
-    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
-                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]))
-    at_approach = se2.from_xy_yaw(2.0, 0.5, np.pi / 2)
-    assert nav.step(0.0, at_approach, pts(at_approach)).target_index == 1
-    closer = se2.from_xy_yaw(2.05, 0.75, np.pi / 2)  # on towards the doorway: no going back
-    assert nav.step(0.1, closer, pts(closer)).target_index == 1
-    pushed = se2.from_xy_yaw(1.45, -0.05, 2.5)
-    cmd = nav.step(0.2, pushed, pts(pushed))
-    assert cmd.target_index == 0 and cmd.state in ("navigating", "turning")
-    T, dt, states = pushed, 0.05, []
-    for k in range(1200):
-        cmd = nav.step(0.3 + k * dt, T, pts(T))
-        states.append(cmd.target_index)
-        if cmd.state == "reached":
-            break
-        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
-    assert cmd.state == "reached" and states.count(0) > 0
-
-
 def test_a_waypoint_heading_is_given_up_without_room_to_turn(cache_dir) -> None:
     nav = make_nav(cache_dir)
     nav.set_waypoints(np.array([[0.0, 0.0], [3.0, 0.0]]), headings_rad=np.array([np.pi, np.nan]))
