@@ -118,7 +118,7 @@ def _run_ray(jobs: Sequence[Job], workers: int | None, address: str,
     if started_here:
         connect_ray(address, workers)
     try:
-        task = ray.remote(num_cpus=1, max_retries=1)(_ray_job)
+        task = ray.remote(num_cpus=1, max_retries=1)(run_job)
         window = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         rows: list[dict[str, Any] | None] = [None] * len(jobs)
         in_flight: dict[Any, int] = {}
@@ -137,11 +137,6 @@ def _run_ray(jobs: Sequence[Job], workers: int | None, address: str,
     finally:
         if started_here:
             ray.shutdown()
-
-
-def _ray_job(job: Job) -> dict[str, Any]:
-    """:func:`run_job` in a Ray worker (1 CPU; importing simnav keeps software rendering in the rendering thread)."""
-    return run_job(job)
 
 
 def import_ray():

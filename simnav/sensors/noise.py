@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 _NONE = np.zeros(0)  # no draws (no noise, no dropouts)
+_NONE_F32 = np.zeros((0, 0), dtype=np.float32)  # the same for an image
 
 
 def lidar_noise(
@@ -62,9 +63,6 @@ def depth_noise(
     normals = rng.standard_normal(z.shape, dtype=np.float32) if k_per_m > 0 else _NONE_F32
     uniforms = rng.random(z.shape, dtype=np.float32) if dropout_prob > 0 else _NONE_F32
     return _noisy_depth(z, normals, np.float32(k_per_m), np.float32(quantum_m), uniforms, np.float32(dropout_prob))
-
-
-_NONE_F32 = np.zeros((0, 0), dtype=np.float32)
 
 
 @njit(cache=True, error_model="numpy")
