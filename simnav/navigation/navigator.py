@@ -20,7 +20,10 @@ When no path of any family reaches the target (a wall close ahead, the target to
 target lies more than ``turn_in_place_start_rad`` off the heading, the robot turns in place towards it if nothing
 is within its turning circle: every PTG path moves forward while it turns, so close to a wall the secure distance
 stops them all. When every path is blocked the robot backs away slowly for a few seconds if the space behind is
-free, then stops and waits (§6.C.6); it backs only onto the path it drove along. A target whose distance has not
+free, then stops and waits (§6.C.6); it backs only onto the path it drove along. A waypoint to line up at (given a
+heading) whose spot is taken, an open door leaf or someone standing there, counts as reached once the robot is
+close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly now and then to make
+room (someone in a doorway may be waiting to come out past it). A target whose distance has not
 improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
@@ -68,6 +71,9 @@ class NavigatorConfig:
         waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
         waypoint_heading_tolerance_rad: a waypoint given a heading counts as passed only once the robot faces that
             heading within this; until then it turns in place there (when its turning circle is free), rad.
+        taken_waypoint_pass_m: a waypoint given a heading whose spot is taken (the robot standing on it at that
+            heading would overlap a sensed or remembered point: an open door leaf, someone standing there) counts
+            as reached within this distance: the robot lines up where it is, m.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
@@ -83,7 +89,8 @@ class NavigatorConfig:
         recovery_min_s: once backing away, keep at it at least this long before moving forward again, s.
         recovery_duration_s: back away at most this long, then stop and wait, s.
         recovery_retry_s: after waiting this long, back away again (someone who waits to pass the robot, in a
-            doorway, may need more room than one backing gives), s.
+            doorway, may need more room than one backing gives); in front of a taken goal, after waiting this
+            long, back away while the space behind is free (no trail needed), s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
         recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
             many seconds: the sensors see little behind the robot, the path it came along was free, s.
@@ -99,7 +106,8 @@ class NavigatorConfig:
             improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
         stuck_progress_m: progress that resets the stuck timer, m.
         blocked_check_m: within this distance of the goal, check whether the robot would collide if it stood on
-            the goal (then it stops there, state ``blocked``, until the goal clears), m.
+            the goal (then it stops there, state ``blocked``, until the goal clears, backing away now and then to
+            make room: ``recovery_retry_s``), m.
         blocked_confirm_steps: consecutive steps the goal must look blocked before stopping.
     """
 
@@ -120,6 +128,7 @@ class NavigatorConfig:
     target_allowed_distance_m: float = 0.3
     waypoint_allowed_distance_m: float = 1.0
     waypoint_heading_tolerance_rad: float = math.radians(20.0)
+    taken_waypoint_pass_m: float = 0.6
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
     slow_down_distance_m: float = 0.6
@@ -156,6 +165,7 @@ class NavigatorConfig:
              "need 0 <= secure_distance_start < secure_distance_end <= 1"),
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
             (0 < self.waypoint_heading_tolerance_rad <= math.pi, "waypoint_heading_tolerance_rad must be in (0, pi]"),
+            (self.taken_waypoint_pass_m >= 0, "taken_waypoint_pass_m must be >= 0"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
@@ -260,6 +270,8 @@ class ReactiveNavigator3D:
         self._blocked_since_s: float | None = None
         self._progress_target = -1
         self._goal_blocked_steps = 0
+        self._goal_blocked_since_s: float | None = None
+        self._spot_taken_steps = 0
         self._turning = False
         self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
         self._seam_side = 0  # the way the robot turns on paths across alpha = +-pi: +1 left, -1 right, 0 none
@@ -289,7 +301,7 @@ class ReactiveNavigator3D:
             raise ValueError(f"waypoints must be a non-empty (W, 2) finite array, got shape {wp.shape}")
         skip = np.ones(len(wp), dtype=bool) if allow_skip is None else np.asarray(allow_skip, dtype=bool)
         near = (np.full(len(wp), self.config.waypoint_allowed_distance_m) if allowed_distance_m is None
-                else np.asarray(allowed_distance_m, dtype=np.float64))
+                else np.array(allowed_distance_m, dtype=np.float64))
         heading = (np.full(len(wp), np.nan) if headings_rad is None
                    else np.asarray(headings_rad, dtype=np.float64).copy())
         if skip.shape != (len(wp),) or near.shape != (len(wp),) or heading.shape != (len(wp),):
@@ -299,6 +311,7 @@ class ReactiveNavigator3D:
         self._headings, self._aligning = heading, False
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = None
+        self._spot_taken_steps = 0
         self._turning, self._turn_end = False, None
         self._seam_side = 0
 
@@ -350,6 +363,10 @@ class ReactiveNavigator3D:
             if len(virtual_xy):
                 xy, ptr = merge_bands(xy, ptr, virtual_xy, virtual_ptr)
         band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
+        # A waypoint to line up at whose spot is taken, close by: reached where the robot is
+        if not self._aligning and self._lineup_spot_taken(T_odom_base, band_xy):
+            self._allowed_m[self._target] = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
+            self._advance_waypoints(T_odom_base)
         # A waypoint reached but not faced at its heading: turn in place to it (pass it if there is no room)
         if self._aligning:
             w = self._alignment_turn(T_odom_base, xy, ptr)
@@ -376,7 +393,8 @@ class ReactiveNavigator3D:
         else:
             near_band_xy = band_xy  # not looked at: the goal is too far for the check
         if self._goal_is_blocked(T_odom_base, near_band_xy):
-            return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
+            return self._wait_for_goal(stamp_s, dt, t0, band_xy, target_index)
+        self._goal_blocked_since_s = None
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
         best, direct = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
         # No path reaches a target far off the heading: turn in place towards it if the turning circle is free
@@ -480,6 +498,37 @@ class ReactiveNavigator3D:
                   for band, pts in zip(self.bands, band_xy, strict=True))
         self._goal_blocked_steps = self._goal_blocked_steps + 1 if hit else 0
         return self._goal_blocked_steps >= self.config.blocked_confirm_steps
+
+    def _wait_for_goal(self, stamp_s: float, dt: float, t0: float, band_xy: list[np.ndarray],
+                       target_index: int) -> NavCommand:
+        """In front of a taken goal: stop and wait, and after every ``recovery_retry_s`` of waiting make room,
+        backing away slowly for ``recovery_duration_s`` while the space behind is free (someone in a doorway who
+        waits to come out past the robot stands on the spot the robot waits for)."""
+        cfg = self.config
+        if self._goal_blocked_since_s is None:
+            self._goal_blocked_since_s = stamp_s
+        phase = (stamp_s - self._goal_blocked_since_s) % (cfg.recovery_retry_s + cfg.recovery_duration_s)
+        if phase >= cfg.recovery_retry_s and self._behind_is_free(band_xy):
+            return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "blocked", target_index)
+        return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
+
+    def _lineup_spot_taken(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> bool:
+        """Whether the current waypoint (not the goal) has a heading, lies within ``taken_waypoint_pass_m`` and the
+        robot standing on it at that heading would overlap an obstacle point, for ``blocked_confirm_steps`` steps
+        in a row (an open door leaf beside a doorway's approach waypoint leaves no room to stand there)."""
+        from simnav.navigation.collision_grid import points_in_polygon
+
+        k = self._target
+        spot, heading = self._waypoints[k], float(self._headings[k])
+        if k >= len(self._waypoints) - 1 or not math.isfinite(heading) or \
+                float(np.linalg.norm(spot - T_odom_base[:2, 2])) > self.config.taken_waypoint_pass_m:
+            self._spot_taken_steps = 0
+            return False
+        T_spot_base = se2.inverse(se2.inverse(T_odom_base) @ se2.from_xy_yaw(spot[0], spot[1], heading))
+        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_spot_base, pts), band.polygon))
+                  for band, pts in zip(self.bands, band_xy, strict=True))
+        self._spot_taken_steps = self._spot_taken_steps + 1 if hit else 0
+        return self._spot_taken_steps >= self.config.blocked_confirm_steps
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
         """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""

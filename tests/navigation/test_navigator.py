@@ -85,6 +85,26 @@ def test_a_wall_across_the_way_stops_the_robot_before_it(cache_dir) -> None:
     assert np.max(np.abs(poses[:, 1, 2])) < 0.3       # it came at it and stopped, no search along the wall
 
 
+@pytest.mark.parametrize("behind_free", [True, False])
+def test_in_front_of_a_taken_goal_the_robot_makes_room_now_and_then(cache_dir, behind_free) -> None:
+    # someone stands on the goal 1 m ahead, 0.9 m away; the robot stops before them, then after recovery_retry_s
+    # of waiting backs away slowly for recovery_duration_s, unless something stands right behind it
+    nav = make_nav(cache_dir)
+    nav.set_target((1.0, 0.0))
+    person = np.array([[0.9, 0.0, 0.2]])
+    behind = np.zeros((0, 3)) if behind_free else np.array([[-0.45, 0.0, 0.2]])
+    cfg, dt = nav.config, 0.05
+    commands = [nav.step(k * dt, np.eye(3), np.vstack([person, behind])) for k in range(int(14.0 / dt))]
+    assert all(c.state == "blocked" for c in commands[5:])
+    backing = [k * dt for k, c in enumerate(commands) if c.v_m_s < 0]
+    if not behind_free:
+        assert not backing
+        return
+    assert min(backing) >= cfg.recovery_retry_s
+    assert max(backing) <= cfg.recovery_retry_s + cfg.recovery_duration_s + 0.5
+    assert min(c.v_m_s for c in commands) == pytest.approx(-cfg.recovery_speed_m_s)
+
+
 def test_a_goal_is_reached_when_only_its_far_part_is_taken(cache_dir) -> None:
     # someone stands just past the goal: the robot would touch them on the goal itself, not 0.3 m before it
     nav = make_nav(cache_dir)
@@ -287,6 +307,39 @@ def test_a_waypoint_with_a_heading_is_passed_facing_it_then_the_doorway_behind_i
     assert cmd.state == "reached"
     assert "turning" in states
     assert np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) <= 0.15
+    yaw = math.atan2(passed_at[1, 0], passed_at[0, 0])
+    assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
+
+
+def _run_waypoints(nav: ReactiveNavigator3D, obstacles: np.ndarray, steps: int, dt: float = 0.05):
+    """Closed loop over the waypoints already set; returns the last command and the pose where waypoint 0 was
+    passed (None if never)."""
+    T, passed_at, cmd = np.eye(3), None, None
+    for k in range(steps):
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), obstacles[:, :2]), obstacles[:, 2]])
+        cmd = nav.step(k * dt, T, pts)
+        if passed_at is None and cmd.target_index >= 1:
+            passed_at = T.copy()
+        if cmd.state == "reached":
+            break
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    return cmd, passed_at
+
+
+@pytest.mark.parametrize("pass_m", [0.6, 0.0])
+def test_a_waypoint_to_line_up_at_whose_spot_is_taken_is_lined_up_at_from_close_by(cache_dir, pass_m) -> None:
+    # a post 0.1 m beside the approach waypoint (2, 0.5), heading +y: no pose within its 0.15 m leaves room for the
+    # robot (half-width 0.3 m); the way on to (2, 1.5) and the goal passes 0.6 m from the post
+    post = np.array([[2.1, 0.5, 0.2], [2.12, 0.5, 0.2], [2.1, 0.52, 0.2], [2.1, 0.48, 0.2]])
+    nav = make_nav(cache_dir, taken_waypoint_pass_m=pass_m)
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.5], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]))
+    cmd, passed_at = _run_waypoints(nav, post, 1200)
+    if pass_m == 0.0:  # never reached within its tolerance: the robot stays before it
+        assert passed_at is None and cmd.state != "reached"
+        return
+    assert cmd.state == "reached"
+    assert 0.15 < np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) <= pass_m
     yaw = math.atan2(passed_at[1, 0], passed_at[0, 0])
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
