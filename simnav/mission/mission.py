@@ -39,7 +39,7 @@ from simnav.robot.interface import RobotInterface
 from simnav.robot.spec import RobotSpec
 from simnav.sim import SimConfig, Simulator
 from simnav.sim.robot import SimRobot
-from simnav.world.footprint import clearance_m, obstacle_union
+from simnav.world.footprint import clearance_m, door_swing_distance_m, obstacle_union
 from simnav.world.schema import WorldSpec
 
 INCIDENT_MERGE_S = 1.0
@@ -219,6 +219,9 @@ class _MissionRunner:
         self._narrow = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms)) \
             < NARROW_NODE_CLEARANCE_M
         self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
+        # nodes where the robot would stand in a door's swing: the leaf, open or moving, blocks it there, and a
+        # robot waiting there keeps the door open
+        self._in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
@@ -330,9 +333,9 @@ class _MissionRunner:
         return route
 
     def _random_target(self, start: int) -> int:
-        """A roadmap node other than ``start`` to go to, drawn uniformly; not a narrow one (a doorway is no place
-        to stand) unless every node is narrow."""
-        candidates = np.nonzero(~self._narrow)[0]
+        """A roadmap node other than ``start`` to go to, drawn uniformly; not a narrow one nor one in a door's
+        swing (a doorway is no place to stand) unless every node is."""
+        candidates = np.nonzero(~(self._narrow | self._in_swing))[0]
         candidates = candidates[candidates != start]
         if len(candidates) == 0:
             return self.sim.roadmap.random_node(self.rng, exclude=start)
@@ -355,16 +358,17 @@ class _MissionRunner:
                 row.path_length_ratio = row.distance_m / row.shortest_m
 
     def _intervene(self, row, route: list[int]) -> list[int]:
-        """Stuck: move the robot to the next roadmap node of its route that is not in a doorway and that nobody
-        stands on, and go on (counted as an intervention); a robot set down in a doorway, facing along the route,
-        can touch its jambs, one set down on people touches them. When only the goal is left and someone stands on
-        it, the robot is set down at the free node nearest to it and goes on from there."""
+        """Stuck: move the robot to the next roadmap node of its route that is not in a doorway or a door's swing
+        and that nobody stands on, and go on (counted as an intervention); a robot set down in a doorway, facing
+        along the route, can touch its jambs, one set down on people touches them. When only the goal is left and
+        someone stands on it, the robot is set down at the free node nearest to it and goes on from there."""
         graph = self.sim.roadmap
         xy = self._true_pose()[:2, 2]
         closest = int(np.argmin(np.linalg.norm(graph.nodes_xy[route] - xy, axis=1)))
         taken = self._taken_nodes()
-        remaining = resume_route(route, closest, self._narrow, taken)
-        free = np.nonzero(~self._narrow & ~taken)[0]
+        unfit = self._narrow | self._in_swing
+        remaining = resume_route(route, closest, unfit, taken)
+        free = np.nonzero(~unfit & ~taken)[0]
         if taken[remaining[0]] and len(free):
             near = free[np.argmin(np.linalg.norm(graph.nodes_xy[free] - graph.nodes_xy[remaining[0]], axis=1))]
             remaining = graph.shortest_path(int(near), route[-1])

@@ -72,6 +72,21 @@ def door_leaf_polygon(door: Door) -> Polygon:
     return rectangle(mid, (door.width_m, door.thickness_m), door.closed_yaw_deg)
 
 
+def door_swing_polygon(door: Door, arc_points: int = 16) -> Polygon:
+    """The area the leaf sweeps between closed and fully open: a circular sector of radius ``width_m`` about the
+    hinge, from ``closed_yaw_deg`` through ``swing_deg``."""
+    start, sweep = math.radians(door.closed_yaw_deg), math.radians(door.swing_deg)
+    arc = [(door.hinge[0] + door.width_m * math.cos(start + sweep * k / arc_points),
+            door.hinge[1] + door.width_m * math.sin(start + sweep * k / arc_points)) for k in range(arc_points + 1)]
+    return Polygon([tuple(door.hinge), *arc])
+
+
+def door_swing_distance_m(spec: WorldSpec, xy: np.ndarray) -> np.ndarray:
+    """(N,) distance (metres) from each (N, 2) world point to the nearest area a door leaf sweeps (0 inside;
+    +inf in a world without doors)."""
+    return distance_to(shapely.unary_union([door_swing_polygon(d) for d in spec.doors]), xy)
+
+
 def _box_polygon(box: Box, z_min_m: float, z_max_m: float) -> list[Polygon]:
     if not _overlaps(box.z_m, box.z_m + box.size_m[2], z_min_m, z_max_m):
         return []

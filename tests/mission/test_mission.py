@@ -217,3 +217,23 @@ def test_an_intervention_does_not_set_the_robot_down_on_people():
     assert gap >= runner._circumradius_m + crowd.radius_m + SET_DOWN_CLEARANCE_M - 1e-9
     assert remaining[-1] == route[-1]  # still on its way to the same goal
     assert runner.report.interventions == 1
+
+
+def test_targets_are_never_drawn_in_a_doors_swing():
+    # the office's room nodes 0.9 m from a hinge lie in the area the leaf sweeps: a robot waiting there keeps the
+    # door open, and the open leaf keeps the spot taken
+    from simnav.mission.mission import _MissionRunner
+    from simnav.world.footprint import door_swing_distance_m
+
+    settings = MissionSettings(targets=1, seed=5)
+    world = load_world("office")
+    runner = _MissionRunner(world, mission_robot(load_robot("giraff"), settings), settings, None)
+    try:
+        nodes = runner.sim.roadmap.nodes_xy
+        in_swing = door_swing_distance_m(world, nodes) < runner._circumradius_m
+        assert 0 < in_swing.sum() < len(nodes)
+        drawn = {runner._random_target(0) for _ in range(300)}
+        assert not any(in_swing[list(drawn)])
+        assert len(drawn) >= (~(runner._narrow | in_swing)).sum() - 2  # every other node can be drawn
+    finally:
+        runner.close()

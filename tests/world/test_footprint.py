@@ -143,3 +143,14 @@ def test_bounds_cover_all_geometry() -> None:
         boxes=[Box(center=(0.0, 3.0), size_m=(1.0, 1.0, 0.1), z_m=2.5)],
     )
     assert fp.bounds(world) == pytest.approx((-1.0, -0.1, 5.0, 3.5))
+
+
+def test_door_swing_distance_is_zero_in_the_swept_sector_and_grows_outside() -> None:
+    door = Door(hinge=(0.0, 0.0), width_m=1.0, closed_yaw_deg=0.0, swing_deg=90.0)
+    world = _world(doors=[door])
+    d = fp.door_swing_distance_m(world, np.array([[0.5, 0.5], [0.0, -0.5], [2.0, 0.0], [-0.3, 0.4]]))
+    assert d[0] == 0.0                                   # swept by the leaf
+    assert d[1] == pytest.approx(0.5)                    # below the hinge, on the other side of the closed leaf
+    assert d[2] == pytest.approx(1.0, abs=1e-6)          # past the leaf's tip
+    assert d[3] == pytest.approx(0.3)                    # beside the open leaf
+    assert np.isinf(fp.door_swing_distance_m(_world(), np.zeros((1, 2)))).all()
