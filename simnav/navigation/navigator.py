@@ -310,7 +310,7 @@ class ReactiveNavigator3D:
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
         self._headings, self._aligning = heading, False
         self._best_distance, self._best_distance_stamp_s = math.inf, None
-        self._blocked_since_s = None
+        self._blocked_since_s = self._goal_blocked_since_s = None
         self._spot_taken_steps = 0
         self._turning, self._turn_end = False, None
         self._seam_side = 0
@@ -367,6 +367,8 @@ class ReactiveNavigator3D:
         if not self._aligning and self._lineup_spot_taken(T_odom_base, band_xy):
             self._allowed_m[self._target] = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
             self._advance_waypoints(T_odom_base)
+            if self.goal_reached:
+                return self._output(0.0, 0.0, dt, t0, "reached")
         # A waypoint reached but not faced at its heading: turn in place to it (pass it if there is no room)
         if self._aligning:
             w = self._alignment_turn(T_odom_base, xy, ptr)
