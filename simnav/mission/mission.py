@@ -221,7 +221,8 @@ class _MissionRunner:
         self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
         # nodes where the robot would stand in a door's swing: the leaf, open or moving, blocks it there, and a
         # robot waiting there keeps the door open
-        self._in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
+        in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
+        self._unfit = self._narrow | in_swing  # no place to stand: targets and set-downs avoid these nodes
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
@@ -335,7 +336,7 @@ class _MissionRunner:
     def _random_target(self, start: int) -> int:
         """A roadmap node other than ``start`` to go to, drawn uniformly; not a narrow one nor one in a door's
         swing (a doorway is no place to stand) unless every node is."""
-        candidates = np.nonzero(~(self._narrow | self._in_swing))[0]
+        candidates = np.nonzero(~self._unfit)[0]
         candidates = candidates[candidates != start]
         if len(candidates) == 0:
             return self.sim.roadmap.random_node(self.rng, exclude=start)
@@ -366,9 +367,8 @@ class _MissionRunner:
         xy = self._true_pose()[:2, 2]
         closest = int(np.argmin(np.linalg.norm(graph.nodes_xy[route] - xy, axis=1)))
         taken = self._taken_nodes()
-        unfit = self._narrow | self._in_swing
-        remaining = resume_route(route, closest, unfit, taken)
-        free = np.nonzero(~unfit & ~taken)[0]
+        remaining = resume_route(route, closest, self._unfit, taken)
+        free = np.nonzero(~self._unfit & ~taken)[0]
         if taken[remaining[0]] and len(free):
             near = free[np.argmin(np.linalg.norm(graph.nodes_xy[free] - graph.nodes_xy[remaining[0]], axis=1))]
             remaining = graph.shortest_path(int(near), route[-1])

@@ -486,18 +486,13 @@ class ReactiveNavigator3D:
     def _goal_is_blocked(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> bool:
         """Whether the robot would overlap an obstacle standing on :meth:`_goal_spot`, facing the goal (someone
         stands on the goal: the robot stops in front of it instead of pressing on)."""
-        from simnav.navigation.collision_grid import points_in_polygon
-
         goal = self._waypoints[-1]
         offset = goal - T_odom_base[:2, 2]
         if float(np.linalg.norm(offset)) > self.config.blocked_check_m:
             self._goal_blocked_steps = 0
             return False
-        spot = self._goal_spot(T_odom_base)
-        T_spot = se2.inverse(T_odom_base) @ se2.from_xy_yaw(spot[0], spot[1], math.atan2(offset[1], offset[0]))
-        T_spot_base = se2.inverse(T_spot)
-        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_spot_base, pts), band.polygon))
-                  for band, pts in zip(self.bands, band_xy, strict=True))
+        hit = self._would_overlap(T_odom_base, self._goal_spot(T_odom_base), math.atan2(offset[1], offset[0]),
+                                  band_xy)
         self._goal_blocked_steps = self._goal_blocked_steps + 1 if hit else 0
         return self._goal_blocked_steps >= self.config.blocked_confirm_steps
 
@@ -518,19 +513,25 @@ class ReactiveNavigator3D:
         """Whether the current waypoint (not the goal) has a heading, lies within ``taken_waypoint_pass_m`` and the
         robot standing on it at that heading would overlap an obstacle point, for ``blocked_confirm_steps`` steps
         in a row (an open door leaf beside a doorway's approach waypoint leaves no room to stand there)."""
-        from simnav.navigation.collision_grid import points_in_polygon
-
         k = self._target
         spot, heading = self._waypoints[k], float(self._headings[k])
         if k >= len(self._waypoints) - 1 or not math.isfinite(heading) or \
                 float(np.linalg.norm(spot - T_odom_base[:2, 2])) > self.config.taken_waypoint_pass_m:
             self._spot_taken_steps = 0
             return False
-        T_spot_base = se2.inverse(se2.inverse(T_odom_base) @ se2.from_xy_yaw(spot[0], spot[1], heading))
-        hit = any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_spot_base, pts), band.polygon))
-                  for band, pts in zip(self.bands, band_xy, strict=True))
+        hit = self._would_overlap(T_odom_base, spot, heading, band_xy)
         self._spot_taken_steps = self._spot_taken_steps + 1 if hit else 0
         return self._spot_taken_steps >= self.config.blocked_confirm_steps
+
+    def _would_overlap(self, T_odom_base: np.ndarray, spot_xy: np.ndarray, yaw_rad: float,
+                       band_xy: list[np.ndarray]) -> bool:
+        """Whether the robot's true sections, standing at ``spot_xy`` (fixed frame, m) facing ``yaw_rad``, would
+        contain a point of ``band_xy`` (per band, base frame at ``T_odom_base``)."""
+        from simnav.navigation.collision_grid import points_in_polygon
+
+        T_spot_base = se2.inverse(se2.inverse(T_odom_base) @ se2.from_xy_yaw(spot_xy[0], spot_xy[1], yaw_rad))
+        return any(len(pts) and np.any(points_in_polygon(se2.transform_points(T_spot_base, pts), band.polygon))
+                   for band, pts in zip(self.bands, band_xy, strict=True))
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
         """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""
