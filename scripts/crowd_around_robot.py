@@ -23,6 +23,7 @@ from simnav.agents import Crowd
 from simnav.robot import load_robot
 from simnav.sim import SimConfig, Simulator
 from simnav.world import load_world
+from simnav.world.footprint import obstacle_segments
 
 NEAR_M = 1.3
 SLOW_M_S = 0.2
@@ -33,7 +34,7 @@ def slowed_near(sim: Simulator, xy: np.ndarray, seed: int, seconds: float) -> tu
     """(person-seconds slow within NEAR_M of a robot standing at ``xy``, longest spell of one person in s)."""
     robot = np.array([[xy[0], xy[1], sim.robot_radius_m]])
     doors = sim.doors.segments_xy() if sim.doors else None
-    crowd = Crowd(sim.roadmap, sim._walls_xy, sim.pedestrian_count, np.random.default_rng(seed),
+    crowd = Crowd(sim.roadmap, obstacle_segments(sim.world), sim.pedestrian_count, np.random.default_rng(seed),
                   keep_out=np.array([[xy[0], xy[1], sim.robot_radius_m + 0.5]]))
     spell, total, longest = np.zeros(crowd.count), 0.0, 0.0
     for _ in range(round(seconds / AGENT_DT_S)):
