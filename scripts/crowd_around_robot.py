@@ -30,11 +30,12 @@ SLOW_M_S = 0.2
 AGENT_DT_S = 0.04
 
 
-def slowed_near(sim: Simulator, xy: np.ndarray, seed: int, seconds: float) -> tuple[float, float]:
-    """(person-seconds slow within NEAR_M of a robot standing at ``xy``, longest spell of one person in s)."""
+def slowed_near(sim: Simulator, walls: np.ndarray, doors: np.ndarray | None, xy: np.ndarray, seed: int,
+                seconds: float) -> tuple[float, float]:
+    """(person-seconds slow within NEAR_M of a robot standing at ``xy``, longest spell of one person in s), among
+    the (W, 2, 2) ``walls`` and the (D, 2, 2) door leaves ``doors`` (metres)."""
     robot = np.array([[xy[0], xy[1], sim.robot_radius_m]])
-    doors = sim.doors.segments_xy() if sim.doors else None
-    crowd = Crowd(sim.roadmap, obstacle_segments(sim.world), sim.pedestrian_count, np.random.default_rng(seed),
+    crowd = Crowd(sim.roadmap, walls, sim.pedestrian_count, np.random.default_rng(seed),
                   keep_out=np.array([[xy[0], xy[1], sim.robot_radius_m + 0.5]]))
     spell, total, longest = np.zeros(crowd.count), 0.0, 0.0
     for _ in range(round(seconds / AGENT_DT_S)):
@@ -66,12 +67,15 @@ def main() -> None:
     if not args.seconds > 0:
         parser.error(f"--seconds must be > 0, got {args.seconds}")
     sim = Simulator(load_world("office"), load_robot("giraff"), SimConfig(), seed=0)
+    walls = obstacle_segments(sim.world)
+    doors = sim.doors.segments_xy() if sim.doors else None
     table = Table(title=f"people slowed near a robot standing at x = {args.x} m in the office corridor "
                         f"({args.seeds} seeds x {args.seconds:.0f} s, {sim.pedestrian_count} people)")
-    for name in ("offset (m)", "person-s slow within 1.3 m, per 100 s", "longest spell (s)"):
+    for name in ("offset (m)", f"person-s slow within {NEAR_M} m, per 100 s", "longest spell (s)"):
         table.add_column(name, justify="right")
     for offset in args.offsets:
-        runs = [slowed_near(sim, np.array([args.x, offset]), seed, args.seconds) for seed in range(args.seeds)]
+        runs = [slowed_near(sim, walls, doors, np.array([args.x, offset]), seed, args.seconds)
+                for seed in range(args.seeds)]
         per_100_s = 100.0 * sum(r[0] for r in runs) / (args.seeds * args.seconds)
         table.add_row(f"{offset:.2f}", f"{per_100_s:.1f}", f"{max(r[1] for r in runs):.1f}")
     sim.close()
