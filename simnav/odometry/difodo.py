@@ -222,7 +222,7 @@ def edge_aware_gradient(depth_m: np.ndarray, cam: LevelCamera,
     return zu, zv, oku, okv
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float,
                   dt: float, xi: np.ndarray, kz: float, kl: float, k1: float, discontinuity_px: float,
                   information: bool, real: np.ndarray,
@@ -230,7 +230,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     """Compiled :func:`level_system` with scratch ``real`` (6, H, W) and ``flags`` (3, H, W); returns ``H, g,
     bb, rows, information, mean depth``."""
     h, w = z_old.shape
-    z, zt, zu, zv, lin = real[0], real[1], real[2], real[3], real[4]
+    z, zt, zu, zv = real[0], real[1], real[2], real[3]
     ok, oku, okv = flags[0], flags[1], flags[2]
     # 1. Mean ("inter") depth and temporal difference dt Z_t.
     for v in range(h):
@@ -240,17 +240,8 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
             zt[v, u] = np.float64(z_new[v, u]) - z_old[v, u] if ok[v, u] else 0.0
     # 2. Edge-aware spatial gradients (3.42–3.45).
     _gradients(z, xn, yn, fx, fy, discontinuity_px, zu, zv, oku, okv)
-    # 3. Linearisation error: (3.32) by the stencil [-1 0 1] over the first derivatives, plus the first-order term.
-    for v in range(h):
-        for u in range(w):
-            lin[v, u] = k1 * (zu[v, u] ** 2 + zv[v, u] ** 2 + zt[v, u] ** 2)
-    _add_centred_squared(zt, ok, 1, kl, lin)
-    _add_centred_squared(zt, ok, 0, kl, lin)
-    _add_centred_squared(zu, oku, 1, kl, lin)
-    _add_centred_squared(zv, okv, 0, kl, lin)
-    _add_centred_squared(zv, okv, 1, kl, lin)
-    # 4. One weighted row per usable pixel (weight from the measurement error, 3.30, and ``lin``), accumulated
-    # into the normal equations.
+    # 3. One weighted row per usable pixel (weight from the measurement error, 3.30, and the linearisation error,
+    # 3.32), accumulated into the normal equations.
     Hm, g, info = np.zeros((6, 6)), np.zeros(6), np.zeros((6, 6))
     row = np.empty(6)
     bb, depth_sum, rows = 0.0, 0.0, 0
@@ -260,16 +251,27 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     var_t = 1.0 / (2.0 * dt * dt)
     xi_s = (xi[0], xi[1], xi[2], xi[3], xi[4], xi[5])  # a tuple of scalars: no reference counting per pixel
     for v in range(h):
+        va, vb = max(v - 1, 0), min(v + 1, h - 1)  # rows above and below (flags say whether they exist)
         for u in range(w):
             if not (oku[v, u] and okv[v, u]):
                 continue
+            ul, ur = max(u - 1, 0), min(u + 1, w - 1)
+            has_l, has_r, has_a, has_b = u > 0, u < w - 1, v > 0, v < h - 1
+            # Linearisation error: the first-order term, and (3.32) by the stencil [-1 0 1] over the first
+            # derivatives.
+            lin = k1 * (zu[v, u] ** 2 + zv[v, u] ** 2 + zt[v, u] ** 2) + kl * (
+                _centred_squared(zt[v, ul], has_l and ok[v, ul], zt[v, u], zt[v, ur], has_r and ok[v, ur])
+                + _centred_squared(zt[va, u], has_a and ok[va, u], zt[v, u], zt[vb, u], has_b and ok[vb, u])
+                + _centred_squared(zu[v, ul], has_l and oku[v, ul], zu[v, u], zu[v, ur], has_r and oku[v, ur])
+                + _centred_squared(zv[va, u], has_a and okv[va, u], zv[v, u], zv[vb, u], has_b and okv[vb, u])
+                + _centred_squared(zv[v, ul], has_l and okv[v, ul], zv[v, u], zv[v, ur], has_r and okv[v, ur]))
             d = z[v, u]
             x, y = xn[u] * d, yn[v] * d
             ga, gb = fx * zu[v, u] / d, fy * zv[v, u] / d
             gc = 1.0 + ga * xn[u] + gb * yn[v]
             row[0], row[1], row[2] = -ga, -gb, gc
             row[3], row[4], row[5] = gc * y + gb * d, -(gc * x + ga * d), ga * y - gb * x
-            weight = 1.0 / (_measurement_variance(xn[u], yn[v], d, ga, gb, gc, fx, fy, var_t, xi_s, kz) + lin[v, u])
+            weight = 1.0 / (_measurement_variance(xn[u], yn[v], d, ga, gb, gc, fx, fy, var_t, xi_s, kz) + lin)
             rhs = -zt[v, u] / dt
             # Upper triangle of the normal matrix in scalars (kept in registers; an array would be reloaded).
             r0, r1, r2, r3, r4, r5 = row[0], row[1], row[2], row[3], row[4], row[5]
@@ -290,7 +292,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
                         info[i, j] += unit * row[i] * row[j]
             depth_sum += d
             rows += 1
-    # 5. Symmetrise, and scale the weights to at most 1 (only relative weights matter).
+    # 4. Symmetrise, and scale the weights to at most 1 (only relative weights matter).
     Hm[0], Hm[1, 1:], Hm[2, 2:] = (h00, h01, h02, h03, h04, h05), (h11, h12, h13, h14, h15), (h22, h23, h24, h25)
     Hm[3, 3:], Hm[4, 4:], Hm[5, 5] = (h33, h34, h35), (h44, h45), h55
     g[:] = (g0, g1, g2, g3, g4, g5)
@@ -301,7 +303,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     return Hm * scale, g * scale, bb * scale, rows, info, depth_sum / max(rows, 1)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float, discontinuity_px: float,
                zu: np.ndarray, zv: np.ndarray, oku: np.ndarray, okv: np.ndarray) -> None:
     """Compiled :func:`edge_aware_gradient` of a float64 depth image, written into ``zu, zv, oku, okv``.
@@ -340,7 +342,7 @@ def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: flo
         above_diff, above_dist, below_diff, below_dist = below_diff, below_dist, above_diff, above_dist
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_n: float, has_n: bool,
                  limit: float) -> tuple[float, bool]:
     """Edge-aware gradient (3.44 / 3.45) of one pixel along one axis from the difference and distance to its
@@ -357,29 +359,22 @@ def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_
     return 0.0, False
 
 
-@njit(cache=True)
-def _add_centred_squared(f: np.ndarray, ok: np.ndarray, axis: int, scale: float, out: np.ndarray) -> None:
-    """Adds ``scale * (f(+1) - f(-1))^2`` along columns (``axis=1``) or rows (``axis=0``) to ``out`` (stencil
-    [-1 0 1]); next to a missing neighbour the difference is twice the one-sided one, without neighbours 0."""
-    h, w = f.shape
-    dv, du = (0, 1) if axis == 1 else (1, 0)
-    for v in range(h):
-        for u in range(w):
-            vp, up, vn, un = v - dv, u - du, v + dv, u + du
-            has_p = vp >= 0 and up >= 0 and ok[vp, up]
-            has_n = vn < h and un < w and ok[vn, un]
-            if has_p and has_n:
-                diff = f[vn, un] - f[vp, up]
-            elif has_n:
-                diff = 2.0 * (f[vn, un] - f[v, u])
-            elif has_p:
-                diff = 2.0 * (f[v, u] - f[vp, up])
-            else:
-                diff = 0.0
-            out[v, u] += scale * diff * diff
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
+def _centred_squared(f_prev: float, has_prev: bool, f: float, f_next: float, has_next: bool) -> float:
+    """``(f(+1) - f(-1))^2`` (stencil [-1 0 1]) from a pixel's value and its two neighbours' along one axis;
+    next to a missing neighbour the difference is twice the one-sided one, without neighbours 0."""
+    if has_prev and has_next:
+        diff = f_next - f_prev
+    elif has_next:
+        diff = 2.0 * (f_next - f)
+    elif has_prev:
+        diff = 2.0 * (f - f_prev)
+    else:
+        diff = 0.0
+    return diff * diff
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _measurement_variance(xz: float, yz: float, z: float, a: float, b: float, c: float, fx: float, fy: float,
                           var_t: float, xi: tuple[float, float, float, float, float, float], kz: float) -> float:
     """Variance of one constraint from the depth noise (3.30 with the covariances 3.47–3.56).

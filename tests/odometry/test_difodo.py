@@ -308,3 +308,64 @@ def test_warping_keeps_the_closest_surface():
     assert covered.mean() > 0.85 and np.mean(np.abs(err) < 0.01) > 0.98  # measured: 0.90, 0.99
     # Background where the previous view sees a foreground: only where that surface is hidden in the new view.
     assert np.mean(err > 0.05) < 0.01  # measured: 0.4 % (farthest-wins: 2.1 %)
+
+
+# ------------------------------------------------------------------------------------------ normal equations
+
+
+def _centred_squared_reference(f: np.ndarray, ok: np.ndarray, axis: int) -> np.ndarray:
+    """``(f(+1) - f(-1))^2`` along ``axis`` with the one-sided rule next to a missing neighbour (numpy)."""
+    fp, fn = np.roll(f, 1, axis), np.roll(f, -1, axis)
+    has_p, has_n = np.roll(ok, 1, axis), np.roll(ok, -1, axis)
+    first = [slice(None)] * 2
+    first[axis] = 0
+    has_p[tuple(first)] = False
+    first[axis] = -1
+    has_n[tuple(first)] = False
+    diff = np.where(has_p & has_n, fn - fp, np.where(has_n, 2 * (fn - f), np.where(has_p, 2 * (f - fp), 0.0)))
+    return diff**2
+
+
+def test_normal_equations_match_the_weighted_constraints_written_out():
+    # The compiled level system against eqs. 3.23, 3.30, 3.32 and 3.33 written with numpy, on a noisy pair.
+    from simnav.odometry.difodo import edge_aware_gradient, level_system
+
+    before, after, _ = two_frames(SMALL_MOTION, (120, 160), noise_k=1.5e-3)
+    z_old, z_new = before.depth_m.copy(), after.depth_m.copy()
+    z_new[40:50, 60:90] = 0.0  # a hole
+    cfg, dt, xi = DifodoConfig(), DT_S, np.array([0.3, -0.1, 0.4, 0.2, -0.3, 0.25])
+    cam = LevelCamera.from_K(before.K, 120, 160)
+    system = level_system(z_old, z_new, cam, dt, xi, cfg)
+    # Mean depth, temporal difference, edge-aware gradients.
+    ok = (z_old > 0) & (z_new > 0)
+    z = np.where(ok, 0.5 * (z_old.astype(np.float64) + z_new), 0.0)
+    zt = np.where(ok, z_new.astype(np.float64) - z_old, 0.0)
+    zu, zv, oku, okv = edge_aware_gradient(z, cam, cfg.discontinuity_px)
+    # Linearisation error (3.32 plus the first-order term).
+    lin = cfg.linearization_k1 * (zu**2 + zv**2 + zt**2) + cfg.linearization_kl * (
+        _centred_squared_reference(zt, ok, 1) + _centred_squared_reference(zt, ok, 0)
+        + _centred_squared_reference(zu, oku, 1) + _centred_squared_reference(zv, okv, 0)
+        + _centred_squared_reference(zv, okv, 1))
+    # Rows of the range-flow constraint and their measurement variance (3.30).
+    use = oku & okv
+    xn, yn = np.broadcast_to(cam.x_over_z, z.shape)[use], np.broadcast_to(cam.y_over_z[:, None], z.shape)[use]
+    d = z[use]
+    x, y = xn * d, yn * d
+    a, b = cam.fx * zu[use] / d, cam.fy * zv[use] / d
+    c = 1.0 + a * xn + b * yn
+    A = np.stack([-a, -b, c, c * y + b * d, -(c * x + a * d), a * y - b * x], axis=1)
+    p = xi[2] + y * xi[3] - x * xi[4]
+    dzu = cam.fx * (xn * p - xi[0] - d * xi[4] + y * xi[5]) / d
+    dzv = cam.fy * (yn * p - xi[1] + d * xi[3] - x * xi[5]) / d
+    d_ray = p - c * xi[2] + a * xi[0] + b * xi[1]
+    sz2 = (cfg.noise_kz * d * d) ** 2
+    var = sz2 * (1 / (2 * dt * dt) + 0.125 * (dzu**2 + dzv**2)) + (cfg.noise_kz * d * d_ray) ** 2
+    weight = 1.0 / (var + lin[use])
+    B = -zt[use] / dt
+    H = A.T @ (weight[:, None] * A)
+    scale = 1.0 / np.abs(H).max()
+    assert system.rows == use.sum() > 10000
+    np.testing.assert_allclose(system.H, H * scale, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(system.g, A.T @ (weight * B) * scale, rtol=1e-9, atol=1e-12 * np.abs(system.g).max())
+    assert system.bb == pytest.approx(np.sum(weight * B * B) * scale, rel=1e-9)
+    assert system.mean_depth_m == pytest.approx(d.mean(), rel=1e-12)
