@@ -260,7 +260,7 @@ def warp_depth(depth_m: np.ndarray, cam: LevelCamera, T_dst_src: np.ndarray, max
     return work.depth
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _warp_kernel(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, T: np.ndarray, fx: float, fy: float, cx: float,
                  cy: float, step: float, real: np.ndarray, drawn: np.ndarray, out: np.ndarray) -> None:
     """Compiled :func:`warp_depth`; ``step`` is the continuity limit as a fraction of depth per pixel, ``real``
@@ -285,23 +285,24 @@ def _warp_kernel(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, T: np.ndarray, f
     # 2. Rasterise the two triangles of every 2 x 2 block whose corners lie on one surface.
     for v in range(h - 1):
         for u in range(w - 1):
-            # Block a b / c d; each triangle is listed so that its last and first corners are the diagonal.
-            diagonal_ad = abs(z[v, u] - z[v + 1, u + 1]) <= abs(z[v, u + 1] - z[v + 1, u])
-            for second in (False, True):
-                if diagonal_ad:
-                    corners = (v + 1, u + 1, v + 1, u, v, u) if second else (v, u, v, u + 1, v + 1, u + 1)
-                else:
-                    corners = (v + 1, u, v + 1, u + 1, v, u + 1) if second else (v, u + 1, v, u, v + 1, u)
-                v0, u0, v1, u1, v2, u2 = corners
-                ia, ib, ic = inv[v0, u0], inv[v1, u1], inv[v2, u2]
-                if ia <= 0 or ib <= 0 or ic <= 0:
-                    continue
-                za, zb, zc = z[v0, u0], z[v1, u1], z[v2, u2]
-                if not (_same_surface(za, zb, 1.0, step) and _same_surface(zb, zc, 1.0, step)
-                        and _same_surface(zc, za, SQRT2, step)):
-                    continue
-                drawn[v0, u0] = drawn[v1, u1] = drawn[v2, u2] = True
-                _rasterise(pu[v0, u0], pv[v0, u0], ia, pu[v1, u1], pv[v1, u1], ib, pu[v2, u2], pv[v2, u2], ic, best)
+            # Block a b / c d, split along the diagonal with the smaller depth difference into the triangles
+            # p q r and r s p (p-r the diagonal; a b d and d c a, or b a c and c d b).
+            if abs(z[v, u] - z[v + 1, u + 1]) <= abs(z[v, u + 1] - z[v + 1, u]):
+                vp, up, vq, uq, vr, ur, vs, us = v, u, v, u + 1, v + 1, u + 1, v + 1, u
+            else:
+                vp, up, vq, uq, vr, ur, vs, us = v, u + 1, v, u, v + 1, u, v + 1, u + 1
+            ip, iq, ir, i_s = inv[vp, up], inv[vq, uq], inv[vr, ur], inv[vs, us]
+            zp, zq, zr, zs = z[vp, up], z[vq, uq], z[vr, ur], z[vs, us]
+            if not (ip > 0 and ir > 0 and _same_surface(zp, zr, SQRT2, step)):
+                continue
+            first = iq > 0 and _same_surface(zp, zq, 1.0, step) and _same_surface(zq, zr, 1.0, step)
+            second = i_s > 0 and _same_surface(zr, zs, 1.0, step) and _same_surface(zs, zp, 1.0, step)
+            if first:
+                drawn[vp, up] = drawn[vq, uq] = drawn[vr, ur] = True
+                _rasterise(pu[vp, up], pv[vp, up], ip, pu[vq, uq], pv[vq, uq], iq, pu[vr, ur], pv[vr, ur], ir, best)
+            if second:
+                drawn[vr, ur] = drawn[vs, us] = drawn[vp, up] = True
+                _rasterise(pu[vr, ur], pv[vr, ur], ir, pu[vs, us], pv[vs, us], i_s, pu[vp, up], pv[vp, up], ip, best)
     # 3. Points in no triangle fall into their nearest pixel.
     for v in range(h):
         for u in range(w):
@@ -320,7 +321,7 @@ def _same_surface(z0: float, z1: float, pixels: float, step: float) -> bool:
     return abs(z1 - z0) <= step * pixels * min(z0, z1)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _rasterise(au: float, av: float, ai: float, bu: float, bv: float, bi: float, cu: float, cv: float, ci: float,
                best: np.ndarray) -> None:
     """Rasterises the triangle of projected corners ``(u, v, inverse depth)`` a, b, c into ``best`` (largest
