@@ -49,7 +49,8 @@ PARALLEL_MIN = 32768
 (more so on a loaded machine)."""
 
 PARALLEL_MIN_WARPS = 8192
-"""The same for the warping kernels (:func:`linearize`, :func:`cluster_residuals`), about 10x slower per pixel."""
+"""The same for the warping kernels (:func:`linearize`, :func:`cluster_residuals`), about 10x slower per pixel, and
+for the nearest-centre search of :func:`kmeans` (24 centres per point)."""
 
 _N_NORMAL = 28  # 21 upper-triangle entries of H, 6 of the gradient, chi^2
 _UPPER = np.array([[0, 1, 2, 3, 4, 5], [1, 6, 7, 8, 9, 10], [2, 7, 11, 12, 13, 14], [3, 8, 12, 15, 16, 17],
@@ -295,7 +296,7 @@ def kmeans(points: np.ndarray, centres: np.ndarray, max_iterations: int, tol_m: 
 def _nearest(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.ndarray, labels: np.ndarray) -> None:
     """Writes the index of the nearest centre of every point (coordinates (n,) each) into ``labels``."""
     n = px.shape[0]
-    if n >= PARALLEL_MIN:
+    if n >= PARALLEL_MIN_WARPS:
         _nearest_par(px, py, pz, centres, labels)
     else:
         for blk in range((n + BLOCK - 1) // BLOCK):
