@@ -1,0 +1,132 @@
+"""Paired A/B runtime of DIFODO or Joint-VO-SF between two versions of simnav, on the same frames and cores.
+
+The machine's speed can swing by 2x within minutes, so two separate runs of ``bench_difodo_runtime.py`` or
+``bench_vosf_runtime.py`` do not compare two versions. This script renders the synthetic frames of those scripts
+once (QVGA by default), exports each git revision (``git archive``) into a temporary folder, starts one persistent
+worker per version pinned to the same cores (``--threads``: 1 for DIFODO as its bench, 2 for Joint-VO-SF's target),
+and alternates passes over the frames between them (a fresh odometry per pass, after a warm-up pass that compiles or
+loads the Numba kernels). It prints each version's median time per frame (first frame of a pass left out), the
+median of the paired ratios B/A, which the swings cancel out of, and the largest difference between the two
+versions' final poses.
+
+    python scripts/bench_odometry_ab.py BASE_REV [NEW_REV] [--method difodo|vosf] [--rounds 20] [--frames 40]
+                                        [--resolution qvga|qqvga] [--threads 1]
+
+``NEW_REV`` defaults to the working tree (not an export: uncommitted changes count).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pickle
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from bench_env_ab import ROOT, export
+
+WORKER = """
+import pickle, sys, time
+import numpy as np
+import simnav
+method, frames_file = sys.argv[1], sys.argv[2]
+with open(frames_file, "rb") as f:
+    frames = pickle.load(f)
+if method == "difodo":
+    from simnav.odometry.difodo import DIFODO as Odometry
+    kwargs = {"max_rows": frames[0].depth_m.shape[0]}
+else:
+    from simnav.odometry.vosf import JointVOSF as Odometry
+    kwargs = {}
+def run():
+    odo, times, est = Odometry(**kwargs), [], None
+    for frame in frames:
+        t0 = time.perf_counter()
+        est = odo.process(frame)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[1:])), est.T_odom_camera
+run()
+print("ready", simnav.__file__, flush=True)
+for line in sys.stdin:
+    median_s, T = run()
+    print(median_s, " ".join(repr(float(x)) for x in T.ravel()), flush=True)
+"""
+
+
+def make_frames(method: str, resolution: str, n: int) -> list:
+    """The frames of the method's runtime bench: DIFODO's box room or Joint-VO-SF's textured room with a walker."""
+    if method == "difodo":
+        import bench_difodo_runtime as bench
+
+        shape = bench.RESOLUTIONS[resolution.upper()]
+        return bench.make_frames(shape, bench.base_poses(n), 1.5e-3)
+    import bench_vosf_runtime as bench
+
+    return bench.make_frames(n, *bench.RESOLUTIONS[resolution])[0]
+
+
+def start(tree: Path, method: str, frames_file: Path, cores: str, threads: int) -> subprocess.Popen:
+    """A worker running ``method`` over the pickled frames with simnav imported from ``tree``, ready for passes."""
+    cmd = [sys.executable, "-c", WORKER, method, str(frames_file)]
+    if hasattr(os, "sched_setaffinity"):
+        cmd = ["taskset", "-c", cores, *cmd]
+    limits = {var: str(threads) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                            "NUMBA_NUM_THREADS")}
+    proc = subprocess.Popen(cmd, cwd=tree, env=dict(os.environ, PYTHONPATH=str(tree), **limits),
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    ready = proc.stdout.readline().split()
+    if ready[:1] != ["ready"] or not Path(ready[1]).is_relative_to(tree):
+        raise SystemExit(f"the worker for {tree} did not start with its own simnav: {' '.join(ready)}")
+    return proc
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("base", help="git revision A")
+    parser.add_argument("new", nargs="?", help="git revision B (default: the working tree)")
+    parser.add_argument("--method", choices=["difodo", "vosf"], default="difodo")
+    parser.add_argument("--rounds", type=int, default=20, help="passes over the frames per version")
+    parser.add_argument("--frames", type=int, default=40, help="frames per pass")
+    parser.add_argument("--resolution", choices=["qvga", "qqvga"], default="qvga")
+    parser.add_argument("--threads", type=int, default=1, help="cores pinned and threads per library")
+    args = parser.parse_args()
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else list(range(os.cpu_count() or 1))
+    if args.threads < 1 or args.threads > len(cores):
+        raise SystemExit(f"--threads must be between 1 and {len(cores)}, got {args.threads}")
+    pinned = ",".join(str(c) for c in cores[-args.threads:])
+    frames = make_frames(args.method, args.resolution, args.frames)
+    with tempfile.TemporaryDirectory() as tmp:
+        frames_file = Path(tmp) / "frames.pkl"
+        frames_file.write_bytes(pickle.dumps(frames))
+        trees = [export(args.base, Path(tmp) / "a"), export(args.new, Path(tmp) / "b") if args.new else ROOT]
+        print(f"starting the workers (the first start in a fresh export compiles the kernels) on cores {pinned}")
+        workers = [start(tree, args.method, frames_file, pinned, args.threads) for tree in trees]
+        times: list[list[float]] = [[], []]
+        poses: list[np.ndarray] = [np.eye(4), np.eye(4)]
+        for r in range(args.rounds):
+            for j in ((0, 1) if r % 2 == 0 else (1, 0)):
+                workers[j].stdin.write("pass\n")
+                workers[j].stdin.flush()
+                fields = workers[j].stdout.readline().split()
+                times[j].append(float(fields[0]))
+                poses[j] = np.array([float(x) for x in fields[1:]]).reshape(4, 4)
+        for w in workers:
+            w.stdin.close()
+            w.wait()
+    names = [args.base, args.new or "working tree"]
+    print(f"{args.method} {args.resolution}, {args.frames} frames per pass, {args.rounds} passes each, "
+          f"{args.threads} thread(s)")
+    for name, ts in zip(names, times, strict=True):
+        print(f"{name}: median {1e3 * statistics.median(ts):.2f} ms per frame (best pass {1e3 * min(ts):.2f})")
+    paired = statistics.median(b / a for a, b in zip(times[0], times[1], strict=True))
+    print(f"B/A time per frame: median of the paired ratios {paired:.3f}")
+    print(f"largest difference of the final poses: {np.abs(poses[0] - poses[1]).max():.2e}")
+
+
+if __name__ == "__main__":
+    main()
