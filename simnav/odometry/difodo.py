@@ -27,8 +27,8 @@ Conventions:
 
 The per-pixel stages are Numba kernels (``@njit(cache=True)``: compiled on first use, about 10 s, then loaded from
 ``__pycache__``); helpers they call per pixel take scalars, as an array argument costs reference counting per
-call. A QVGA frame takes about 15 ms on one core, a QQVGA frame about 5.5 ms (``scripts/bench_difodo_runtime.py``;
-a 30 Hz camera leaves 33 ms).
+call. A QVGA frame takes 12-17 ms on one core, a QQVGA frame 3-5 ms, depending on the machine's load
+(``scripts/bench_difodo_runtime.py``; a 30 Hz camera leaves 33 ms).
 """
 
 from __future__ import annotations
