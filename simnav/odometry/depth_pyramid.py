@@ -81,13 +81,13 @@ class Workspace:
     """Scratch arrays of one image size, reused by the kernels from call to call.
 
     Attributes:
-        real: (6, H, W) float64 scratch images.
+        real: (4, H, W) float64 scratch images.
         flags: (3, H, W) bool scratch masks.
         depth: (H, W) float32, the output of :func:`warp_depth`.
     """
 
     def __init__(self, height: int, width: int) -> None:
-        self.real = np.empty((6, height, width))
+        self.real = np.empty((4, height, width))
         self.flags = np.empty((3, height, width), dtype=np.bool_)
         self.depth = np.empty((height, width), dtype=np.float32)
 

@@ -227,7 +227,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
                   dt: float, xi: np.ndarray, kz: float, kl: float, k1: float, discontinuity_px: float,
                   information: bool, real: np.ndarray,
                   flags: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int, np.ndarray, float]:
-    """Compiled :func:`level_system` with scratch ``real`` (6, H, W) and ``flags`` (3, H, W); returns ``H, g,
+    """Compiled :func:`level_system` with scratch ``real`` (4, H, W) and ``flags`` (3, H, W); returns ``H, g,
     bb, rows, information, mean depth``."""
     h, w = z_old.shape
     z, zt, zu, zv = real[0], real[1], real[2], real[3]
@@ -303,7 +303,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     return Hm * scale, g * scale, bb * scale, rows, info, depth_sum / max(rows, 1)
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True)
 def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float, discontinuity_px: float,
                zu: np.ndarray, zv: np.ndarray, oku: np.ndarray, okv: np.ndarray) -> None:
     """Compiled :func:`edge_aware_gradient` of a float64 depth image, written into ``zu, zv, oku, okv``.
@@ -342,7 +342,7 @@ def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: flo
         above_diff, above_dist, below_diff, below_dist = below_diff, below_dist, above_diff, above_dist
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
+@njit(cache=True, inline="always")
 def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_n: float, has_n: bool,
                  limit: float) -> tuple[float, bool]:
     """Edge-aware gradient (3.44 / 3.45) of one pixel along one axis from the difference and distance to its
