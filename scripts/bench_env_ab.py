@@ -52,19 +52,35 @@ def export(rev: str, into: Path) -> Path:
     return into
 
 
-def start(tree: Path, env_id: str, env_kwargs: str, core: int) -> subprocess.Popen:
-    """A worker stepping ``env_id`` made with the JSON keyword arguments ``env_kwargs``, with simnav imported from
-    ``tree``, ready for chunks."""
-    cmd = [sys.executable, "-c", WORKER, env_id, env_kwargs]
+def start_worker(tree: Path, worker: str, args: list[str], cores: str,
+                 env: dict[str, str] | None = None) -> subprocess.Popen:
+    """``python -c worker *args`` with simnav imported from ``tree``, pinned to ``cores`` (a taskset list), once it
+    has printed ``ready`` and the path of the simnav it imported (which must lie in ``tree``)."""
+    cmd = [sys.executable, "-c", worker, *args]
     if hasattr(os, "sched_setaffinity"):
-        cmd = ["taskset", "-c", str(core), *cmd]
+        cmd = ["taskset", "-c", cores, *cmd]
     # run in the tree: ``python -c`` puts the working directory first on the import path
-    proc = subprocess.Popen(cmd, cwd=tree, env=dict(os.environ, PYTHONPATH=str(tree)), stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, cwd=tree, env=dict(os.environ, PYTHONPATH=str(tree), **(env or {})),
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     ready = proc.stdout.readline().split()
     if ready[:1] != ["ready"] or not Path(ready[1]).is_relative_to(tree):
         raise SystemExit(f"the worker for {tree} did not start with its own simnav: {' '.join(ready)}")
     return proc
+
+
+def alternate(workers: list[subprocess.Popen], rounds: int, request: str) -> list[list[str]]:
+    """Sends ``request`` to the two workers in turn, ``rounds`` times each (who goes first alternates), and returns
+    each worker's reply lines; then closes them."""
+    replies: list[list[str]] = [[], []]
+    for r in range(rounds):
+        for j in ((0, 1) if r % 2 == 0 else (1, 0)):
+            workers[j].stdin.write(f"{request}\n")
+            workers[j].stdin.flush()
+            replies[j].append(workers[j].stdout.readline())
+    for w in workers:
+        w.stdin.close()
+        w.wait()
+    return replies
 
 
 def main() -> None:
@@ -80,16 +96,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         trees = [export(args.base, Path(tmp) / "a"), export(args.new, Path(tmp) / "b") if args.new else ROOT]
         print(f"starting the workers (the first start in a fresh export compiles the kernels) on core {args.core}")
-        workers = [start(tree, args.env, args.env_kwargs, args.core) for tree in trees]
-        times: list[list[float]] = [[], []]
-        for r in range(args.rounds):
-            for j in ((0, 1) if r % 2 == 0 else (1, 0)):
-                workers[j].stdin.write(f"{args.chunk}\n")
-                workers[j].stdin.flush()
-                times[j].append(float(workers[j].stdout.readline()))
-        for w in workers:
-            w.stdin.close()
-            w.wait()
+        workers = [start_worker(tree, WORKER, [args.env, args.env_kwargs], str(args.core)) for tree in trees]
+        times = [[float(line) for line in lines] for lines in alternate(workers, args.rounds, str(args.chunk))]
     rates = [[args.chunk / t for t in ts] for ts in times]
     names = [args.base, args.new or "working tree"]
     for name, r in zip(names, rates, strict=True):

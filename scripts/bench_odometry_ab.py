@@ -21,14 +21,12 @@ import argparse
 import os
 import pickle
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from bench_env_ab import ROOT, export
+from bench_env_ab import ROOT, alternate, export, start_worker
 
 WORKER = """
 import pickle, sys, time
@@ -70,21 +68,6 @@ def make_frames(method: str, resolution: str, n: int) -> list:
     return bench.make_frames(n, *bench.RESOLUTIONS[resolution])[0]
 
 
-def start(tree: Path, method: str, frames_file: Path, cores: str, threads: int) -> subprocess.Popen:
-    """A worker running ``method`` over the pickled frames with simnav imported from ``tree``, ready for passes."""
-    cmd = [sys.executable, "-c", WORKER, method, str(frames_file)]
-    if hasattr(os, "sched_setaffinity"):
-        cmd = ["taskset", "-c", cores, *cmd]
-    limits = {var: str(threads) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                                            "NUMBA_NUM_THREADS")}
-    proc = subprocess.Popen(cmd, cwd=tree, env=dict(os.environ, PYTHONPATH=str(tree), **limits),
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    ready = proc.stdout.readline().split()
-    if ready[:1] != ["ready"] or not Path(ready[1]).is_relative_to(tree):
-        raise SystemExit(f"the worker for {tree} did not start with its own simnav: {' '.join(ready)}")
-    return proc
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("base", help="git revision A")
@@ -105,19 +88,12 @@ def main() -> None:
         frames_file.write_bytes(pickle.dumps(frames))
         trees = [export(args.base, Path(tmp) / "a"), export(args.new, Path(tmp) / "b") if args.new else ROOT]
         print(f"starting the workers (the first start in a fresh export compiles the kernels) on cores {pinned}")
-        workers = [start(tree, args.method, frames_file, pinned, args.threads) for tree in trees]
-        times: list[list[float]] = [[], []]
-        poses: list[np.ndarray] = [np.eye(4), np.eye(4)]
-        for r in range(args.rounds):
-            for j in ((0, 1) if r % 2 == 0 else (1, 0)):
-                workers[j].stdin.write("pass\n")
-                workers[j].stdin.flush()
-                fields = workers[j].stdout.readline().split()
-                times[j].append(float(fields[0]))
-                poses[j] = np.array([float(x) for x in fields[1:]]).reshape(4, 4)
-        for w in workers:
-            w.stdin.close()
-            w.wait()
+        limits = {var: str(args.threads) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                                     "NUMBA_NUM_THREADS")}
+        workers = [start_worker(tree, WORKER, [args.method, str(frames_file)], pinned, limits) for tree in trees]
+        replies = [[line.split() for line in lines] for lines in alternate(workers, args.rounds, "pass")]
+        times = [[float(fields[0]) for fields in rows] for rows in replies]
+        poses = [np.array([float(x) for x in rows[-1][1:]]).reshape(4, 4) for rows in replies]
     names = [args.base, args.new or "working tree"]
     print(f"{args.method} {args.resolution}, {args.frames} frames per pass, {args.rounds} passes each, "
           f"{args.threads} thread(s)")
