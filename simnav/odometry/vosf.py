@@ -738,7 +738,7 @@ class JointVOSF:
         """Views of length n of the reused outputs of :func:`~simnav.odometry.vosf_kernels.linearize`
         (residuals, Jacobians, ok flags): fresh multi-megabyte arrays per call cost page faults. Residuals and
         Jacobians are stored in float32 (computed and summed in float64): every IRLS iteration reads them twice,
-        and at QVGA half the bytes made IRLS 0.6-0.7x as long, the solution moving by about 1e-8 of itself."""
+        and at QVGA half the bytes made IRLS 0.5-0.75x as long, the solution moving by about 1e-8 of itself."""
         if self._work is None or len(self._work[2]) < n:
             self._work = (np.empty(2 * n, dtype=np.float32), np.empty(12 * n, dtype=np.float32),
                           np.empty(n, dtype=np.bool_))
