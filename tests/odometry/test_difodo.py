@@ -20,7 +20,13 @@ from simnav.odometry.depth_pyramid import (
     plan_pyramid,
     warp_depth,
 )
-from simnav.odometry.difodo import DIFODO, DifodoConfig, hold_weakest_translation
+from simnav.odometry.difodo import (
+    DIFODO,
+    DifodoConfig,
+    edge_aware_gradient,
+    hold_weakest_translation,
+    level_system,
+)
 from simnav.sensors.readings import RGBDFrame
 
 ROOM = np.array([[-3.0, -2.5, 0.0], [3.0, 2.5, 2.8]])
@@ -328,8 +334,6 @@ def _centred_squared_reference(f: np.ndarray, ok: np.ndarray, axis: int) -> np.n
 
 def test_normal_equations_match_the_weighted_constraints_written_out():
     # The compiled level system against eqs. 3.23, 3.30, 3.32 and 3.33 written with numpy, on a noisy pair.
-    from simnav.odometry.difodo import edge_aware_gradient, level_system
-
     before, after, _ = two_frames(SMALL_MOTION, (120, 160), noise_k=1.5e-3)
     z_old, z_new = before.depth_m.copy(), after.depth_m.copy()
     z_new[40:50, 60:90] = 0.0  # a hole
