@@ -7,8 +7,11 @@ so they can serve as ground truth for scene flow.
 
 Two rules keep the crowd moving where the force model alone locks up. Face-offs (two people meeting in a
 doorway) end when one of them, the one of lower priority after 1.5 s or either after 4 s, steps back for a
-moment. Anybody who makes less than 0.3 m of progress in 10 s re-plans from the nearest roadmap node in
-sight to a new goal. People keep ``circle_clearance_m`` of personal space from a robot (the round obstacles).
+moment. Anybody who comes less than 0.3 m closer to their next waypoint in 10 s re-plans from the nearest
+roadmap node in sight to a new goal, preferring one whose route turns back (two people or a person and a robot
+facing each other in a hallway too narrow to pass otherwise wait for ever); so does anybody blocked by a robot
+again soon after stepping aside for it. People keep ``circle_clearance_m`` of personal space from a robot (the
+round obstacles).
 """
 
 from __future__ import annotations
@@ -53,6 +56,9 @@ FORCE_YIELD_AFTER_S = 4.0
 YIELD_DURATION_S = (1.0, 2.5)
 YIELD_SPEED_FACTOR = 0.5
 ROBOT_PASSING_GAP_M = 0.3
+REPLAN_ATTEMPTS = 4
+ROBOT_GIVE_UP_S = 8.0
+REPLAN_AHEAD_HALF_ANGLE_RAD = math.radians(60.0)
 OCCUPIED_MARGIN_M = 0.1  # a roadmap node closer than this to a robot's rim is taken by the robot
 # the rules as the kernels take them (simnav.agents.kernels.crowd_react)
 _TURNING = (YAW_TIME_CONSTANT_S, MAX_YAW_RATE_RAD_S, MOVING_SPEED_M_S)
@@ -179,6 +185,8 @@ class Crowd:
         self._yaw_rate = np.zeros(len(self._pos))
         self._anchor_xy = self._pos.copy()
         self._anchor_t = np.zeros(len(self._pos))
+        self._anchor_goal = self._target.copy()
+        self._robot_yield_t = np.full(len(self._pos), -math.inf)  # when each last stepped aside for a robot, s
         self._priority = rng.uniform(size=len(self._pos))
         self._blocked_s = np.zeros(len(self._pos))
         self._yield_s = np.zeros(len(self._pos))
@@ -282,12 +290,17 @@ class Crowd:
     def _unblock(self, events: np.ndarray, circles: np.ndarray, walls: Segments) -> None:
         """Those blocked step back, those stuck head elsewhere: (E, 2) events [pedestrian, blocker, or −1 for
         stuck] of :func:`~simnav.agents.kernels.crowd_move`, with the (C, 3) ``circles`` and this step's
-        ``walls``."""
+        ``walls``. Blocked by a robot again within ``ROBOT_GIVE_UP_S`` of stepping aside for one, a pedestrian
+        gives up getting past and heads elsewhere as if stuck."""
+        n = len(self._pos)
         for k, blocker in events:
-            if blocker >= 0:
+            robot_again = blocker >= n and self._time_s - self._robot_yield_t[k] <= ROBOT_GIVE_UP_S
+            if blocker >= 0 and not robot_again:
                 self._step_back(int(k), int(blocker), circles)
             else:
                 self._replan_stuck(int(k), walls)
+            if blocker >= n:
+                self._robot_yield_t[k] = self._time_s
 
     def _moving_segments(self, dynamic_segments: np.ndarray | None) -> np.ndarray:
         """The (D, 2, 2) moving segments (metres), contiguous, with room for them after the walls (kept while D
@@ -315,7 +328,7 @@ class Crowd:
         self._pos, self._vel, self._yaw, self._yaw_rate, events = crowd_move(
             (self._pos, self._vel, self._yaw),
             (self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds, self._arrived),
-            (self._blocked_s, self._priority, self._anchor_xy, self._anchor_t),
+            (self._blocked_s, self._priority, self._anchor_xy, self._anchor_t, self._anchor_goal),
             (self._near_cells, walls, self._fallback, dyn, circ, circ_vel, has_circles),
             self._kernel_params, self._rules, self._time_s, dt_s,
         )
@@ -433,11 +446,29 @@ class Crowd:
         self._blocked_s[k] = 0.0
 
     def _replan_stuck(self, k: int, walls: Segments) -> None:
-        """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``)."""
+        """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``): of up to
+        ``REPLAN_ATTEMPTS`` random goals the first whose route does not lead on the way k was stuck (within
+        ``REPLAN_AHEAD_HALF_ANGLE_RAD`` of it), else the last one: someone who cannot get past a robot in a
+        hallway turns back."""
         _LOG.debug("pedestrian %d stuck at %s, re-planning", k, self._pos[k])
-        self._plan(k, self._nearest_visible_node(self._pos[k], walls))
+        start, stuck_dir = self._nearest_visible_node(self._pos[k], walls), self._dirs[k].copy()
+        for _ in range(REPLAN_ATTEMPTS):
+            self._plan(k, start)
+            if not self._route_leads(k, stuck_dir):
+                break
         self._anchor_xy[k] = self._pos[k]
         self._anchor_t[k] = self._time_s
+        self._anchor_goal[k] = self._target[k]
+
+    def _route_leads(self, k: int, direction: np.ndarray) -> bool:
+        """Whether pedestrian k's route first heads (to its first node more than WAYPOINT_REACHED_M away) within
+        ``REPLAN_AHEAD_HALF_ANGLE_RAD`` of the unit ``direction``."""
+        for node_xy in self._path_xy[k, : self._last_wp[k] + 1]:
+            ahead = node_xy - self._pos[k]
+            dist = float(np.hypot(ahead[0], ahead[1]))
+            if dist > WAYPOINT_REACHED_M:
+                return float(ahead @ direction) >= dist * math.cos(REPLAN_AHEAD_HALF_ANGLE_RAD)
+        return False
 
     def _nearest_visible_node(self, xy: np.ndarray, walls: Segments, candidates: int = 8) -> int:
         """The nearest roadmap node in line of sight of ``xy`` among the closest few, else the nearest one."""

@@ -955,8 +955,8 @@ def crowd_move(motion: tuple, intent: tuple, watch: tuple, scene: tuple, p: np.n
         motion: (positions (N, 2) m, velocities (N, 2) m/s, yaws (N,) rad), replaced by the step.
         intent: (desired directions (N, 2), targets (N, 2) m, yield times (N,) s, yield directions (N, 2), desired
             speeds (N,) m/s, arrived (N,) bool), changed in place.
-        watch: (blocked times (N,) s, priorities (N,), progress anchors (N, 2) m and their times (N,) s), changed
-            in place.
+        watch: (blocked times (N,) s, priorities (N,), progress anchors (N, 2) m, their times (N,) s and the
+            targets (N, 2) m the anchors were set towards), changed in place.
         scene: (the near ``grid`` of :func:`grid_pairs`, ``walls`` = (start, delta, inv_len2, number of static
             walls M), ``reach`` of :func:`crowd_walk`, moving segments (D, 2, 2) m, circles (C, 3) m, their
             velocities (C, 2) m/s, whether there are circles).
@@ -971,7 +971,7 @@ def crowd_move(motion: tuple, intent: tuple, watch: tuple, scene: tuple, p: np.n
     """
     pos, vel, yaw = motion
     dirs, target, yield_s, yield_dir, speeds, arrived = intent
-    blocked_s, priority, anchor_xy, anchor_t = watch
+    blocked_s, priority, anchor_xy, anchor_t, anchor_goal = watch
     grid, walls, reach, dyn, circles, circle_vel, has_circles = scene
     yield_factor, steer, max_speed_factor, radius_m, sweeps, slack_m, turning, blocking, stuck = rules
     # forces, the Euler step and the projection
@@ -985,9 +985,9 @@ def crowd_move(motion: tuple, intent: tuple, watch: tuple, scene: tuple, p: np.n
     heading = np.empty(new_vel.shape[0])
     for i in range(new_vel.shape[0]):
         heading[i] = math.atan2(new_vel[i, 1], new_vel[i, 0])
-    new_yaw, rate, events = crowd_react(new_pos, new_vel, heading, yaw, dirs, arrived, yield_s, blocked_s, priority,
-                                        circles, radius_m, anchor_xy, anchor_t, time_s, dt_s, turning, blocking,
-                                        stuck)
+    new_yaw, rate, events = crowd_react(new_pos, new_vel, heading, yaw, dirs, target, arrived, yield_s, blocked_s,
+                                        priority, circles, radius_m, (anchor_xy, anchor_t, anchor_goal), time_s, dt_s,
+                                        turning, blocking, stuck)
     return new_pos, new_vel, new_yaw, rate, events
 
 
@@ -1003,12 +1003,13 @@ def _largest_step(before: np.ndarray, after: np.ndarray) -> float:
 
 @njit(cache=True, error_model="numpy")
 def crowd_react(pos: np.ndarray, vel: np.ndarray, heading: np.ndarray, yaw: np.ndarray, dirs: np.ndarray,
-                arrived: np.ndarray, yield_s: np.ndarray, blocked_s: np.ndarray, priority: np.ndarray,
-                circles: np.ndarray, radius_m: float, anchor_xy: np.ndarray, anchor_t: np.ndarray, time_s: float,
-                dt_s: float, turning: tuple[float, float, float], blocking: tuple[float, float, float, float, float],
+                target: np.ndarray, arrived: np.ndarray, yield_s: np.ndarray, blocked_s: np.ndarray,
+                priority: np.ndarray, circles: np.ndarray, radius_m: float, anchors: tuple, time_s: float, dt_s: float,
+                turning: tuple[float, float, float], blocking: tuple[float, float, float, float, float],
                 stuck: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The crowd step after the move: :func:`_turn`, :func:`_blocking` and :func:`_stuck` with their rules
-    (``turning``, ``blocking``, ``stuck``), the state arrays updated in place.
+    (``turning``, ``blocking``, ``stuck``), the state arrays updated in place; ``anchors`` = (positions (N, 2) m,
+    times (N,) s, targets (N, 2) m) of :func:`_stuck`.
 
     Returns:
         New yaws, yaw rates, and (E, 2) events [pedestrian, blocker]: those who step back with the one they step
@@ -1017,7 +1018,7 @@ def crowd_react(pos: np.ndarray, vel: np.ndarray, heading: np.ndarray, yaw: np.n
     new_yaw, rate = _turn(vel, heading, yaw, dt_s, turning)
     steps_back, blocker = _blocking(pos, vel, dirs, arrived, yield_s, blocked_s, priority, circles, radius_m, dt_s,
                                     blocking)
-    stuck_idx = _stuck(pos, arrived, anchor_xy, anchor_t, time_s, stuck)
+    stuck_idx = _stuck(pos, target, arrived, anchors[0], anchors[1], anchors[2], time_s, stuck)
     b = steps_back.shape[0]
     events = np.empty((b + stuck_idx.shape[0], 2), dtype=np.int64)
     for e in range(events.shape[0]):
@@ -1124,20 +1125,25 @@ def closest_in_way(pos: np.ndarray, dirs: np.ndarray, others: np.ndarray, reach:
 
 
 @njit(cache=True, error_model="numpy")
-def _stuck(pos: np.ndarray, arrived: np.ndarray, anchor_xy: np.ndarray, anchor_t: np.ndarray, time_s: float,
-           stuck: tuple[float, float]) -> np.ndarray:
-    """Indices of those who made less than ``stuck[0]`` metres of progress in ``stuck[1]`` seconds.
+def _stuck(pos: np.ndarray, target: np.ndarray, arrived: np.ndarray, anchor_xy: np.ndarray, anchor_t: np.ndarray,
+           anchor_goal: np.ndarray, time_s: float, stuck: tuple[float, float]) -> np.ndarray:
+    """Indices of those who came less than ``stuck[0]`` metres closer to their target (N, 2) in ``stuck[1]`` seconds
+    (walking to and fro in front of someone who does not give way is no progress).
 
-    The anchors (N, 2) and their times (N,) move (in place) to whoever made that progress or has arrived.
+    The anchors (N, 2), their times (N,) and the targets they were set towards (N, 2) move (in place) to whoever
+    made that progress, has a new target or has arrived.
     """
     progress_m, time_limit_s = stuck
     n = pos.shape[0]
     out = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
-        dx, dy = pos[i, 0] - anchor_xy[i, 0], pos[i, 1] - anchor_xy[i, 1]
-        if math.sqrt(dx * dx + dy * dy) >= progress_m or arrived[i]:
+        tx, ty = target[i, 0], target[i, 1]
+        new_target = tx != anchor_goal[i, 0] or ty != anchor_goal[i, 1]
+        closer = math.hypot(anchor_xy[i, 0] - tx, anchor_xy[i, 1] - ty) - math.hypot(pos[i, 0] - tx, pos[i, 1] - ty)
+        if closer >= progress_m or new_target or arrived[i]:
             anchor_xy[i, 0], anchor_xy[i, 1] = pos[i, 0], pos[i, 1]
+            anchor_goal[i, 0], anchor_goal[i, 1] = tx, ty
             anchor_t[i] = time_s
         if time_s - anchor_t[i] >= time_limit_s:
             out[count] = i

@@ -220,3 +220,22 @@ def test_people_pass_a_robot_standing_on_their_next_roadmap_node() -> None:
         assert np.all(np.linalg.norm(crowd.positions_xy - robot[0, :2], axis=1) >= crowd.radius_m + 0.35 - 1e-6)
     assert np.all(longest_s > 0)  # everyone's route went through the robot's node ...
     assert np.all(longest_s < 10.0)  # ... and nobody kept heading for it
+
+
+def test_people_facing_a_robot_in_a_hallway_too_narrow_to_pass_turn_back() -> None:
+    # a 1 m hallway, a robot standing in its middle: nobody gets past it, and stepping aside for it leads nowhere;
+    # walking to and fro in front of it is no progress, so each one gives up and heads back the way it came
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [3.0, 0.0], [12.0, 0.0], [15.0, 0.0]]), [(0, 1), (1, 2), (2, 3)])
+    hallway = np.array([[[-1.0, -0.5], [16.0, -0.5]], [[-1.0, 0.5], [16.0, 0.5]], [[-1.0, -0.5], [-1.0, 0.5]],
+                        [[16.0, -0.5], [16.0, 0.5]]])
+    crowd = Crowd(roadmap, hallway, 2, np.random.default_rng(2))
+    robot = np.array([[7.5, 0.0, 0.3]])
+    near_s, longest_s = np.zeros(crowd.count), np.zeros(crowd.count)
+    for _ in range(int(120.0 / DT)):
+        crowd.step(DT, circles=robot, circle_velocities=np.zeros((1, 2)))
+        gap = np.linalg.norm(crowd.positions_xy - robot[0, :2], axis=1) - crowd.radius_m - robot[0, 2]
+        assert np.all(gap >= -1e-6)
+        near_s = np.where(gap < 1.2, near_s + DT, 0.0)
+        longest_s = np.maximum(longest_s, near_s)
+    assert np.all(longest_s > 3.0)  # both came up to the robot and were held up there ...
+    assert np.all(longest_s < 25.0)  # ... but nobody stayed

@@ -104,9 +104,12 @@ class ReferenceCrowd(Crowd):
             self._step_back(int(k), int(blocker[k]), c)
 
     def _reference_stuck(self, walls):
-        progressed = np.linalg.norm(self._pos - self._anchor_xy, axis=1) >= crowd_module.STUCK_PROGRESS_M
-        reset = progressed | self._arrived
+        closer = (np.linalg.norm(self._anchor_xy - self._target, axis=1)
+                  - np.linalg.norm(self._pos - self._target, axis=1))
+        new_target = np.any(self._target != self._anchor_goal, axis=1)
+        reset = (closer >= crowd_module.STUCK_PROGRESS_M) | new_target | self._arrived
         self._anchor_xy[reset] = self._pos[reset]
+        self._anchor_goal[reset] = self._target[reset]
         self._anchor_t[reset] = self._time_s
         for k in np.nonzero(self._time_s - self._anchor_t >= crowd_module.STUCK_TIME_S)[0]:
             self._replan_stuck(int(k), walls)
