@@ -10,7 +10,8 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
    free up to the target (ND's filters drop gaps narrower than ceil(1% N) paths, such as a doorway that only one
    path passes); a path at the seam of TP-space (|alpha| > 135 degrees: turning around) gives way to its mirror image
    when that keeps the robot turning the way it already turns (ND sees the valley behind the robot as two, and the
-   side it picks flips as the robot turns); the secure-distance ramp scales the speed;
+   side it picks flips as the robot turns); the secure-distance ramp caps the speed at the one from which the
+   robot stops short of the path's first obstacle;
 4. the best candidate by the weighted factors f1-f4 (eq. 6.5): collision-free distance, TP-angle to the target,
    closest approach of the path to the target, similarity to the previous command;
 5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
@@ -59,8 +60,13 @@ class NavigatorConfig:
         footprint_margin_m: every section is grown by this much for the collision grids, so that chosen paths keep
             this clearance (the robot's true shape is used for the blocked-goal and recovery checks), m.
         holonomic: ``"nd"`` (default, as in §6.C.6) or ``"vff"``.
-        secure_distance_start: below this normalised free distance the chosen path gets speed 0.
-        secure_distance_end: above it, full speed (linear ramp in between).
+        secure_distance_m: the secure-distance ramp: a candidate path's speed is the one from which the robot stops
+            (``reaction_time_s`` at that speed, then braking at ``braking_m_s2``) this short of the first obstacle
+            along the path; a path free for less than this gets speed 0, m. The ramp is in metres, not in
+            normalised distance, so that it means the same in a 1 m hallway as in an open hall.
+        braking_m_s2: deceleration the ramp assumes (below the robot's acceleration limit), m/s^2.
+        reaction_time_s: time at the old speed before braking starts (a navigation period plus the command's
+            latency), s.
         weight_free_distance: w1 of eq. 6.5 (collision-free distance of the candidate).
         weight_target_angle: w2 (TP-angle between the candidate and the target).
         weight_target_nearness: w3 (closest approach of the candidate's path to the target).
@@ -117,8 +123,9 @@ class NavigatorConfig:
     grid_resolution_m: float = 0.05
     footprint_margin_m: float = 0.05
     holonomic: str = "nd"
-    secure_distance_start: float = 0.05
-    secure_distance_end: float = 0.15
+    secure_distance_m: float = 0.10
+    braking_m_s2: float = 0.4
+    reaction_time_s: float = 0.2
     weight_free_distance: float = 0.5
     weight_target_angle: float = 0.2
     weight_target_nearness: float = 8.0
@@ -161,8 +168,9 @@ class NavigatorConfig:
             (0 < self.grid_resolution_m < self.ref_distance_m, "grid_resolution_m must be in (0, ref_distance_m)"),
             (self.footprint_margin_m >= self.grid_resolution_m / math.sqrt(2) - 1e-9,
              "footprint_margin_m must be at least half the diagonal of a grid cell (grid_resolution_m / sqrt(2))"),
-            (0 <= self.secure_distance_start < self.secure_distance_end <= 1,
-             "need 0 <= secure_distance_start < secure_distance_end <= 1"),
+            (0 <= self.secure_distance_m < self.ref_distance_m, "secure_distance_m must be in [0, ref_distance_m)"),
+            (self.braking_m_s2 > 0, "braking_m_s2 must be > 0"),
+            (self.reaction_time_s >= 0, "reaction_time_s must be >= 0"),
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
             (0 < self.waypoint_heading_tolerance_rad <= math.pi, "waypoint_heading_tolerance_rad must be in (0, pi]"),
             (self.taken_waypoint_pass_m >= 0, "taken_waypoint_pass_m must be >= 0"),
@@ -565,8 +573,7 @@ class ReactiveNavigator3D:
                 choices.append((k_t, _target_path_speed(lim, k_t) * nearness))
             for k, speed in choices:
                 free = float(lim[k])
-                speed *= float(np.clip((free - cfg.secure_distance_start)
-                                       / (cfg.secure_distance_end - cfg.secure_distance_start), 0.0, 1.0))
+                speed = min(speed, self._stopping_speed(space, k, free))
                 if speed <= 0.0:
                     continue
                 score = self._score(space, k, free, k_t, d_t, target_base, on_path)
@@ -598,7 +605,8 @@ class ReactiveNavigator3D:
         circle (its section's circumradius plus the footprint margin) and, to start, the last turn in place is
         ``turn_in_place_retry_s`` or ``turn_in_place_retry_m`` away, unless no path moves (``stalled``): turning
         beats waiting, and then the turning circle needs only ``_TIGHT_TURN_MARGIN_M`` of margin (a robot that
-        stopped 4 cm from an open door leaf, every path blocked, waited there for ever)."""
+        stopped 4 cm from an open door leaf, every path blocked, waited there for ever) and the target only lies
+        beyond ``turn_in_place_stop_rad`` (a robot facing a door jamb 40 degrees off its target waited there)."""
         cfg = self.config
         x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
         if not cfg.turn_in_place:
@@ -609,7 +617,7 @@ class ReactiveNavigator3D:
                     cfg.turn_in_place_retry_m:
                 return False
         bearing = abs(math.atan2(float(target_base[1]), float(target_base[0])))
-        threshold = cfg.turn_in_place_stop_rad if self._turning else cfg.turn_in_place_start_rad
+        threshold = cfg.turn_in_place_stop_rad if self._turning or stalled else cfg.turn_in_place_start_rad
         radii = self._tight_turn_radii_m if stalled else self._turn_radii_m
         turning = not direct and bearing > threshold and _circles_free(xy, ptr, radii)
         if self._turning and not turning:
@@ -643,6 +651,20 @@ class ReactiveNavigator3D:
         return score * (cfg.backward_priority if space.backward else 1.0)
 
     # -------------------------------------------------------------------------------------- speed regulation
+    def _stopping_speed(self, space, k: int, free: float) -> float:
+        """The secure-distance ramp: the relative speed (0..1) on path k from which the robot stops
+        ``secure_distance_m`` short of the path's first obstacle, ``free`` (normalised) along it: reacting for
+        ``reaction_time_s``, then braking at ``braking_m_s2`` (distances in the PTG's pseudo-metres)."""
+        cfg = self.config
+        room_m = free * cfg.ref_distance_m - cfg.secure_distance_m
+        if room_m <= 0.0:
+            return 0.0
+        a, tau = cfg.braking_m_s2, cfg.reaction_time_s
+        allowed_m_s = a * (math.sqrt(tau * tau + 2.0 * room_m / a) - tau)
+        v, w = space.command(k)
+        path_m_s = math.hypot(v, w * space.ptg.config.turning_radius_ref_m)
+        return 1.0 if path_m_s <= allowed_m_s else allowed_m_s / path_m_s
+
     def _obstacle_speed_factor(self, band_xy: list[np.ndarray]) -> float:
         """Slow down near obstacles; an obstacle ahead counts fully, one to the side ``lateral_obstacle_weight``.
 

@@ -381,7 +381,7 @@ def test_stuck_is_reported_after_the_timeout(cache_dir) -> None:
 
 def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
     with pytest.raises(ValueError, match="secure_distance"):
-        NavigatorConfig(secure_distance_start=0.5, secure_distance_end=0.2)
+        NavigatorConfig(secure_distance_m=5.0)
     nav = make_nav(cache_dir)
     with pytest.raises(ValueError, match="waypoints"):
         nav.set_waypoints(np.array([[np.nan, 0.0]]))
@@ -403,6 +403,31 @@ def test_near_obstacles_the_fastest_point_of_the_robot_is_slowed_not_each_speed(
     # an arc shares the cap between driving and turning
     scale = nav._point_speed_scale(0.3, 0.5, 0.4)
     assert scale * (0.3 + 0.5 * radius_m) == pytest.approx(0.4 * V_MAX)
+
+
+def test_the_secure_distance_ramp_lets_the_robot_stop_short_of_the_first_obstacle_on_its_path(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    cfg, space = nav.config, nav._spaces[0]
+    straight = space.num_paths // 2
+    a, tau = cfg.braking_m_s2, cfg.reaction_time_s
+    v_full = space.command(straight)[0]
+    assert nav._stopping_speed(space, straight, cfg.secure_distance_m / cfg.ref_distance_m) == 0.0
+    assert nav._stopping_speed(space, straight, 1.0) == 1.0  # free to the horizon: full speed
+    for room_m in (0.05, 0.2, 0.5):
+        v = v_full * nav._stopping_speed(space, straight, (room_m + cfg.secure_distance_m) / cfg.ref_distance_m)
+        assert v < v_full
+        assert v * tau + v * v / (2 * a) == pytest.approx(room_m)  # reacts, brakes, stops right there
+    # the ramp is in metres: the same speed with twice the horizon and half the normalised distance
+    far = make_nav(cache_dir, ref_distance_m=2 * CONFIG.ref_distance_m)
+    free_m = 0.3
+    assert far._stopping_speed(far._spaces[0], straight, free_m / far.config.ref_distance_m) == pytest.approx(
+        nav._stopping_speed(space, straight, free_m / cfg.ref_distance_m))
+    # a turning path moves along its pseudo-distance (turning counts turning_radius_ref_m per radian)
+    k = straight + 10
+    v, w = space.command(k)
+    s = nav._stopping_speed(space, k, (0.1 + cfg.secure_distance_m) / cfg.ref_distance_m)
+    u = s * math.hypot(v, w * space.ptg.config.turning_radius_ref_m)
+    assert u * tau + u * u / (2 * a) == pytest.approx(0.1)
 
 
 def test_close_to_a_wall_with_the_target_beside_it_the_robot_turns_in_place_then_goes(cache_dir) -> None:
