@@ -66,6 +66,10 @@ DOOR_APPROACH_TOLERANCE_M = 0.15
 navigator's ``waypoint_heading_tolerance_rad``; it turns in place there): a robot that cut the corner into a doorway
 off its axis had no path left through it, m."""
 
+TURNING_NODE_RAD = math.radians(45.0)
+"""The first place to turn after a doorway, where the route turns by more than this, is passed close by (see
+:func:`route_waypoints`), rad."""
+
 DOOR_APPROACH_M = 0.6
 """A narrow node is approached through a waypoint this far before it, towards the previous node of the route (and
 left through one as far after it), so that the robot lines up with a doorway instead of cutting into it at an
@@ -216,9 +220,10 @@ class _MissionRunner:
         self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,
                                     settings.pose_source, self.sim.pedestrian_count)
         nodes = self.sim.roadmap.nodes_xy
-        self._narrow = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms)) \
-            < NARROW_NODE_CLEARANCE_M
+        node_clearance_m = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms))
+        self._narrow = node_clearance_m < NARROW_NODE_CLEARANCE_M
         self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
+        self._turnable = node_clearance_m >= self._circumradius_m + self.nav.config.footprint_margin_m
         # nodes where the robot would stand in a door's swing: the leaf, open or moving, blocks it there, and a
         # robot waiting there keeps the door open
         in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
@@ -345,7 +350,7 @@ class _MissionRunner:
     def _follow(self, route: list[int]) -> None:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
         xy, skip, near, heading = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
-                                                  self.nav.config.waypoint_allowed_distance_m)
+                                                  self.nav.config.waypoint_allowed_distance_m, self._turnable)
         self._route_xy = xy
         self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading)
 
@@ -553,19 +558,24 @@ def _write_nav_log(path: Path, rows: list[tuple]) -> None:
             writer.writerow([f"{x:.6g}" if isinstance(x, float) else x for x in row])
 
 
-def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray,
-                    free_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray, free_m: float,
+                    turnable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
     previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
     far after them (towards the next node, skippable); other nodes may be cut once a later waypoint is reachable and
-    count as passed within ``free_m`` (the one before a narrow node within ``NARROW_NODE_TOLERANCE_M``).
+    count as passed within ``free_m`` (the one before a narrow node within ``NARROW_NODE_TOLERANCE_M``). The first
+    narrow node after one where the robot cannot turn in place (a doorway), where it can (``turnable``: the
+    hallway outside the doorway) and the route turns by more than ``TURNING_NODE_RAD``, is passed within
+    ``DOOR_APPROACH_TOLERANCE_M`` (the navigator then turns in place towards the next waypoint): a robot that
+    counted it as passed from the doorway started turning the wrong way and met the hallway's far wall.
 
     Args:
         nodes_xy: (N, 2) roadmap nodes, m.
         route: node indices in order.
         narrow: (N,) which nodes are narrow.
         free_m: allowed distance of the other nodes, m.
+        turnable: (N,) where the robot can turn in place (default nowhere).
 
     Returns:
         (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m), (W,) heading to pass them at (rad,
@@ -591,7 +601,9 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             q = _towards(p, nodes_xy[route[i - 1]])
             facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
-        add(p, False, NARROW_NODE_TOLERANCE_M)
+        sharp = (turnable is not None and i > 0 and turnable[node] and not turnable[route[i - 1]]
+                 and abs(_route_turn_rad(nodes_xy, route, i)) > TURNING_NODE_RAD)
+        add(p, False, DOOR_APPROACH_TOLERANCE_M if sharp else NARROW_NODE_TOLERANCE_M)
         if i < len(route) - 1:
             add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
     return (np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near),
@@ -614,6 +626,17 @@ def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray,
     while start < len(route) - 1 and unfit[route[start]]:
         start += 1
     return list(route[start:])
+
+
+def _route_turn_rad(nodes_xy: np.ndarray, route: Sequence[int], i: int) -> float:
+    """The turn of the route at its i-th node (0 at either end or where two nodes coincide), rad."""
+    if i == 0 or i == len(route) - 1:
+        return 0.0
+    a = nodes_xy[route[i]] - nodes_xy[route[i - 1]]
+    b = nodes_xy[route[i + 1]] - nodes_xy[route[i]]
+    if np.linalg.norm(a) == 0 or np.linalg.norm(b) == 0:
+        return 0.0
+    return float(se2.wrap_angle(math.atan2(b[1], b[0]) - math.atan2(a[1], a[0])))
 
 
 def _towards(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -186,6 +186,28 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     np.testing.assert_allclose(heading[1], -np.pi / 2)
 
 
+def test_the_hallway_outside_a_doorway_is_reached_close_by_where_the_route_turns():
+    from simnav.mission.mission import DOOR_APPROACH_TOLERANCE_M, NARROW_NODE_TOLERANCE_M, route_waypoints
+
+    # a room (node 0), its doorway (1), the 1 m hallway below it (2), along the hallway (3, 4)
+    nodes = np.array([[0.0, 2.0], [0.0, 0.55], [0.0, 0.0], [2.0, 0.0], [4.0, 0.0]])
+    narrow = np.array([False, True, True, True, False])
+    turnable = np.array([True, False, True, True, True])  # no room to turn in place in the doorway
+
+    def tolerance_at(route, xy_m, turnable=turnable):
+        xy, _, near, _ = route_waypoints(nodes, route, narrow, 1.0, turnable)
+        (i,) = np.flatnonzero(np.all(np.isclose(xy, xy_m), axis=1))
+        return near[i]
+
+    # out of the doorway, then turning along the hallway: the hallway's middle is reached close by
+    assert tolerance_at([0, 1, 2, 3, 4], [0.0, 0.0]) == DOOR_APPROACH_TOLERANCE_M
+    assert tolerance_at([0, 1, 2, 3, 4], [2.0, 0.0]) == NARROW_NODE_TOLERANCE_M  # further along: as before
+    # along the hallway and turning into the doorway (the approach waypoint lines it up), or nothing known about
+    # where the robot can turn: as before
+    assert tolerance_at([4, 3, 2, 1, 0], [0.0, 0.0]) == NARROW_NODE_TOLERANCE_M
+    assert tolerance_at([0, 1, 2, 3, 4], [0.0, 0.0], None) == NARROW_NODE_TOLERANCE_M
+
+
 def test_an_intervention_sets_the_robot_down_past_doorways():
     narrow = np.zeros(10, dtype=bool)
     narrow[[5, 6]] = True  # a doorway and the node inside it
