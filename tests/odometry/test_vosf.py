@@ -264,6 +264,19 @@ def test_moving_person_is_segmented_and_does_not_bias_the_odometry(person_sequen
     assert worst_base > 0.02 and worst_base > 10 * worst_joint
 
 
+def test_a_person_walking_2_5_m_ahead_is_segmented_moving():
+    # The depth prior (15) pushes far clusters to the background; with the paper's lambda_Z = 0.15 this person
+    # stayed 68-85 % moving (module notes: lambda_Z).
+    seq = walking_sequence(6, [(person(3.9, 2.2), (0.0, WALK_M, 0.0), 0.0)], noise=5e-4)
+    vo = JointVOSF()
+    est = [vo.process(f) for f in seq.frames]
+    for e, f in zip(est[1:], seq.frames[1:]):
+        person_px = f.body_id == 0
+        assert 2.4 < np.median(f.depth_m[person_px]) < 2.55 and person_px.mean() > 0.15
+        assert e.extra["moving_mask"][person_px].mean() > 0.9
+        assert e.extra["moving_mask"][~person_px].mean() < 0.06
+
+
 def test_scene_flow_of_two_independently_moving_boxes():
     robot = box(3.3, 3.2, 0.2, (0.25, 0.2, 0.2), 10.0, 7)
     seq = walking_sequence(4, [(person(3.4, 2.2), (0.0, WALK_M, 0.0), 0.0), (robot, (-0.04, -0.01, 0.0), 2.0)])
@@ -417,11 +430,11 @@ def test_compiled_update_matches_the_se3_exponential():
         np.testing.assert_allclose(exp_compose(delta, T), se3.exp(delta) @ T, atol=1e-12)
 
 
-def test_config_defaults_are_the_papers_and_overrides_are_checked():
+def test_config_defaults_are_the_papers_but_the_depth_prior_and_overrides_are_checked():
     cfg = VOSFConfig()
     assert cfg.num_clusters == 24 and (cfg.cluster_grid_cols, cfg.cluster_grid_rows) == (6, 4)
     assert (cfg.photometric_weight, cfg.occlusion_threshold_m, cfg.zmin_fraction) == (0.15, 0.2, 0.25)
-    assert (cfg.lambda_spatial, cfg.lambda_temporal, cfg.lambda_depth) == (0.5, 1.5, 0.15)
+    assert (cfg.lambda_spatial, cfg.lambda_temporal, cfg.lambda_depth) == (0.5, 1.5, 0.02)  # lambda_Z: module notes
     assert (cfg.preweight_ki, cfg.preweight_kz) == (0.1, 1e-4)
     assert (cfg.cauchy_odometry, cfg.cauchy_clusters, cfg.cauchy_refinement) == (0.2, 1.0, 2.0)
     assert JointVOSF(cfg, photometric_weight=0.3).config.photometric_weight == 0.3
