@@ -19,23 +19,29 @@
    desks with no incident; 2D cannot.
 3. ``--long KM``: office and flat missions with the normal mission runner (random roadmap targets, 10 people,
    ground-truth pose, STM on), KM km in all, split as in the thesis (13.5 : 5.01 km); the flat at 0.4 m/s as in
-   §6.C.7. Printed beside Tables 6.1 and 6.2.
+   §6.C.7. Each world's share runs as continuous missions of at most ``--long-chunk-km`` (0.5 km) on consecutive
+   seeds, in parallel over ``--jobs``; with ``--out`` a rerun reuses every mission whose ``report.json`` is there
+   with the same world, people, seed and distance, run by the same package code (a hash of its sources in
+   ``code.txt``). Printed beside Tables 6.1 and 6.2.
 
 The scenarios drive the mission runner (:class:`simnav.mission.mission._MissionRunner`) one route at a time: a
 subclass gives it the start pose (as the world's spawn), the route and the end conditions; the control step,
 sensing, pose source (ground truth) and contact bookkeeping are the runner's own.
 
     python scripts/reproduce_nav_experiments.py [--runs 20] [--seed 0] [--timeout 90] [--variants ...]
-        [--desk-visits 14] [--only door|desks|none] [--long KM] [--jobs N] [--out DIR] [--verbose]
+        [--desk-visits 14] [--only door|desks|none] [--long KM [--long-chunk-km 0.5]] [--jobs N] [--out DIR]
+        [--verbose]
 
 With ``--out DIR``: ``DIR/nav_experiments.md`` (every table, per-run and per-visit rows included),
-``DIR/contour_door*_<nav>_<config>.png`` (every run's path), ``DIR/desks_<nav>.png`` and ``DIR/long_<world>/``
+``DIR/contour_door*_<nav>_<config>.png`` (every run's path), ``DIR/desks_<nav>.png`` and ``DIR/long_<world>/seed-<N>/``
 (the mission runner's report.json, trajectories and plot).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -49,16 +55,15 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-import simnav  # noqa: F401  (before anything that imports mujoco: it chooses the GL backend)
+import simnav  # (before anything that imports mujoco: it chooses the GL backend)
 from simnav.mission.mission import (
     INCIDENT_MERGE_S,
     NARROW_NODE_TOLERANCE_M,
-    MissionProgress,
-    MissionReport,
     MissionSettings,
     _MissionRunner,
     mission_robot,
 )
+from simnav.assets import data_dir
 from simnav.navigation.memory import MemoryConfig
 from simnav.robot import load_robot
 from simnav.robot.spec import RobotSpec
@@ -443,18 +448,73 @@ class DistanceRunner(_MissionRunner):
         return self.report.distance_m >= self.distance_budget_m or super()._finished()
 
 
-def run_long(world_name: str, km: float, people: int, seed: int, out_dir: Path | None,
-             progress: Callable[[MissionProgress], None] | None = None) -> MissionReport:
-    world = load_world(world_name)
+@dataclass(frozen=True)
+class LongJob:
+    """One continuous mission of a long run: ``km`` km in ``world`` among ``people`` people."""
+
+    world: str
+    km: float
+    people: int
+    seed: int
+    out_dir: Path | None = None
+
+
+def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out: Path | None) -> list[LongJob]:
+    """KM km split between the office and the flat as Tables 6.1 : 6.2, each share in continuous missions of at most
+    ``chunk_km`` km on consecutive seeds; the office's first."""
+    total = sum(t["km"] for t in THESIS_LONG.values())
+    jobs = []
+    for name in ("office", "flat"):
+        share = km * THESIS_LONG[name]["km"] / total
+        n = max(1, math.ceil(share / chunk_km - 1e-9))
+        jobs += [LongJob(name, share / n, people[name], seed + k,
+                         out / f"long_{name}" / f"seed-{seed + k}" if out is not None else None) for k in range(n)]
+    return jobs
+
+
+def run_long(job: LongJob) -> dict:
+    """Run one long mission (or reuse its ``report.json`` when the folder holds one of the same job); the report as a
+    dict (the schema of ``report.json``)."""
+    done = _finished_long(job)
+    if done is not None:
+        return done
+    if job.out_dir is not None:
+        job.out_dir.mkdir(parents=True, exist_ok=True)
+        (job.out_dir / "code.txt").write_text(code_fingerprint() + "\n")
+    world = load_world(job.world)
     robot = load_robot("giraff")
-    if world_name == "flat":
+    if job.world == "flat":
         robot = with_max_speed(robot, FLAT_SPEED_M_S)
-    settings = MissionSettings(targets=100000, seed=seed, sim=SimConfig(pedestrians=people))
-    runner = DistanceRunner(world, mission_robot(robot, settings), settings, out_dir, distance_m=km * 1000.0)
+    settings = MissionSettings(targets=100000, seed=job.seed, sim=SimConfig(pedestrians=job.people))
+    runner = DistanceRunner(world, mission_robot(robot, settings), settings, job.out_dir, distance_m=job.km * 1000.0)
     try:
-        return runner.run(progress)
+        report = runner.run(None)
     finally:
         runner.close()
+    return json.loads(report.to_json())
+
+
+def _finished_long(job: LongJob) -> dict | None:
+    """The report of an earlier run of this job in ``job.out_dir``, if it finished with the same settings and the
+    same code."""
+    if job.out_dir is None or not (job.out_dir / "report.json").is_file():
+        return None
+    code = job.out_dir / "code.txt"
+    if not code.is_file() or code.read_text().strip() != code_fingerprint():
+        return None
+    data = json.loads((job.out_dir / "report.json").read_text())
+    same = (data.get("world"), data.get("people"), data.get("seed")) == (job.world, job.people, job.seed)
+    return data if same and data.get("distance_m", 0.0) >= job.km * 1000.0 else None
+
+
+def code_fingerprint() -> str:
+    """SHA-1 over the simnav package's sources and the shipped worlds and robots: a mission is reused only by the
+    code that ran it."""
+    digest = hashlib.sha1()
+    for root in (Path(simnav.__file__).parent, data_dir("worlds"), data_dir("robots")):
+        for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and p.is_file()):
+            digest.update(f"{root.name}/{path.relative_to(root)}".encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
 
 
 # ============================================================================================ execution
@@ -487,6 +547,9 @@ def _info(result) -> str:
                 f"{result.outcome}")
     if isinstance(result, DeskResult):
         return f"{result.nav}: {sum(v.reached for v in result.visits)}/{len(result.visits)} desks"
+    if isinstance(result, dict):
+        return (f"{result['world']} seed {result['seed']}: {result['distance_m']:.0f} m, "
+                f"{result['interventions']} interventions")
     return ""
 
 
@@ -589,20 +652,42 @@ def desk_tables(results: list[DeskResult], world: WorldSpec, tolerance: float, a
     return [summary, per_desk, visits]
 
 
-def long_table(reports: list[MissionReport]) -> Table:
-    table = Table("world", "people", "distance (km)", "duration (h)", "avg speed (m/s)", "max speed (m/s)",
-                  "targets reached", "minor incidents (static/door/people/robots)", "of which robot stopped",
-                  "interventions",
-                  title="long missions beside Tables 6.1 / 6.2 (thesis rows: the real Giraff)")
+def long_table(reports: list[dict]) -> Table:
+    """Per world, the long missions' sums beside the thesis' row."""
+    table = Table("world", "missions", "people", "distance (km)", "duration (h)", "avg speed (m/s)",
+                  "max speed (m/s)", "targets reached", "minor incidents (static/door/people/robots)",
+                  "of which robot stopped", "interventions", "interventions per km",
+                  title="long missions beside Tables 6.1 / 6.2 (thesis rows: the real Giraff)",
+                  caption="each world's share of the distance in continuous missions on consecutive seeds")
+    for world in ("office", "flat"):
+        rows = [r for r in reports if r["world"] == world]
+        if not rows:
+            continue
+        km = sum(r["distance_m"] for r in rows) / 1000
+        hours = sum(r["duration_s"] for r in rows) / 3600
+        kinds = ("total", "static", "door", "people", "robots", "robot_stopped")
+        i = {k: sum(r["minor_incidents"].get(k, 0) for r in rows) for k in kinds}
+        interventions = sum(r["interventions"] for r in rows)
+        table.add_row(f"{world} (simnav)", str(len(rows)), str(rows[0]["people"]), f"{km:.3f}", f"{hours:.2f}",
+                      f"{km / hours / 3.6:.3f}", f"{max(r['max_speed_m_s'] for r in rows):.2f}",
+                      f"{sum(r['targets_reached'] for r in rows)}/{sum(r['targets_requested'] for r in rows)}",
+                      f"{i['total']} ({i['static']}/{i['door']}/{i['people']}/{i['robots']})", str(i["robot_stopped"]),
+                      str(interventions), f"{interventions / km:.1f}")
+        t = THESIS_LONG[world]
+        table.add_row(f"{world} (thesis)", "-", "-", f"{t['km']:.2f}", f"{t['hours']:.2f}", f"{t['avg']:.3f}",
+                      f"{t['max']:.2f}", "-", str(t["incidents"]), "-", str(t["interventions"]),
+                      f"{t['interventions'] / t['km']:.1f}")
+    return table
+
+
+def long_runs_table(reports: list[dict]) -> Table:
+    """One row per long mission."""
+    table = Table("world", "seed", "distance (m)", "sim (s)", "targets", "incidents", "interventions", "wall (s)",
+                  title="long missions: every mission")
     for r in reports:
-        t = THESIS_LONG[r.world]
-        i = r.minor_incidents
-        table.add_row(f"{r.world} (simnav)", str(r.people), f"{r.distance_m / 1000:.3f}", f"{r.duration_s / 3600:.2f}",
-                      f"{r.avg_speed_m_s:.3f}", f"{r.max_speed_m_s:.2f}", f"{r.targets_reached}/{r.targets_requested}",
-                      f"{i['total']} ({i['static']}/{i['door']}/{i['people']}/{i['robots']})",
-                      str(i.get("robot_stopped", "-")), str(r.interventions))
-        table.add_row(f"{r.world} (thesis)", "-", f"{t['km']:.2f}", f"{t['hours']:.2f}", f"{t['avg']:.3f}",
-                      f"{t['max']:.2f}", "-", str(t["incidents"]), "-", str(t["interventions"]))
+        table.add_row(r["world"], str(r["seed"]), f"{r['distance_m']:.0f}", f"{r['duration_s']:.0f}",
+                      f"{r['targets_reached']}/{r['targets_requested']}", str(r["minor_incidents"]["total"]),
+                      str(r["interventions"]), f"{r['wall_time_s']:.0f}")
     return table
 
 
@@ -661,6 +746,9 @@ def main() -> None:
                         help="also run office + flat missions of KM km in all (split 13.5 : 5.01 as the thesis)")
     parser.add_argument("--long-people", default="10", metavar="N[,N_FLAT]",
                         help="people in the office and the flat (one number for both)")
+    parser.add_argument("--long-chunk-km", type=float, default=0.5, metavar="KM",
+                        help="longest continuous long mission; each world's share is split into missions of at most "
+                             "this distance on consecutive seeds, run in parallel with --jobs")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", type=Path, default=None, help="folder for markdown tables and plots")
     parser.add_argument("--verbose", action="store_true", help="also print the per-run and per-visit tables")
@@ -726,23 +814,16 @@ def main() -> None:
                           f"{len(r.visits)} desk visits reached", out / f"desks_{r.nav}.png")
 
     if args.long is not None:
-        total = sum(t["km"] for t in THESIS_LONG.values())
-        reports = []
         people = [int(n) for n in args.long_people.split(",")]
         people = dict(zip(("office", "flat"), people if len(people) == 2 else people * 2, strict=True))
-        for name in ("office", "flat"):
-            km = args.long * THESIS_LONG[name]["km"] / total
-            with _progress() as bar:
-                task = bar.add_task(f"long {name}", total=round(km * 1000), info="")
-
-                def progress(p: MissionProgress, task=task, bar=bar, limit=km * 1000) -> None:
-                    bar.update(task, completed=min(p.distance_m, limit),
-                               info=f"{p.sim_time_s:.0f} s sim, {p.targets_reached} reached")
-
-                reports.append(run_long(name, km, people[name], args.seed, out / f"long_{name}" if out else None,
-                                        progress))
-        tables.append(long_table(reports))
-        console.print(tables[-1])
+        t0 = time.perf_counter()
+        reports = run_jobs(run_long, long_jobs(args.long, people, args.seed, args.long_chunk_km, out), args.jobs,
+                           "long missions")
+        long = [long_table(reports), long_runs_table(reports)]
+        for t in long if args.verbose else long[:1]:
+            console.print(t)
+        tables += long
+        console.print(f"long missions: {time.perf_counter() - t0:.0f} s wall")
 
     console.print(f"total wall time {time.perf_counter() - started:.0f} s")
     if out is not None:
