@@ -152,7 +152,8 @@ class ScenarioRunner(_MissionRunner):
 
             old = self.nav
             self.nav = ReactiveNavigator3D(old.bands, old.max_v_m_s, old.max_w_rad_s, max_acc_m_s2=old._acc[0],
-                                           max_ang_acc_rad_s2=old._acc[1], config=replace(old.config, **nav_options))
+                                           max_ang_acc_rad_s2=old._acc[1], config=replace(old.config, **nav_options),
+                                           view=old.view)
         self.pose.anchor(0.0, self._true_pose())
         self._record_gt()
         self._next_clearance = 0.0

@@ -42,8 +42,10 @@ import numpy as np
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
 from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
+from simnav.navigation.collision_grid import points_in_polygon
 from simnav.navigation.holonomic import HolonomicInput, NDConfig, index_to_alpha
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
+from simnav.navigation.sensing import ViewSector
 
 STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
 
@@ -89,6 +91,13 @@ class NavigatorConfig:
             fastest point of the robot (forward speed plus yaw rate times the circumradius) moves at most this
             fraction of the top speed.
         lateral_obstacle_weight: how much an obstacle straight to the side counts relative to one in front.
+        limit_to_view: when the navigator is given the sensors' fields of view (``view``), a path counts as free
+            only as far as it stays where they see from the robot's current pose (or inside the robot's own
+            outline): what no sensor sees, behind a 240-degree lidar, is not known to be free. Off by default, as
+            in §6.C and MRPT: paths that turn the robot around into the space behind it then look free all the
+            way, and among people blocking the way ahead the robot turns back and forth between them and the
+            people it then sees; with it on, it waits instead (in the simulated crowds that made no fewer
+            interventions: see the README).
         memory: use the short-term memory.
         memory_config: its options.
         recovery_speed_m_s: backward speed while recovering, m/s.
@@ -142,6 +151,7 @@ class NavigatorConfig:
     stop_distance_m: float = 0.05
     min_speed_near_obstacles: float = 0.4
     lateral_obstacle_weight: float = 0.3
+    limit_to_view: bool = False
     memory: bool = True
     memory_config: MemoryConfig = field(default_factory=MemoryConfig)
     recovery_speed_m_s: float = 0.08
@@ -237,11 +247,15 @@ class ReactiveNavigator3D:
         max_ang_acc_rad_s2: angular acceleration limit of the output, rad/s^2 (None = unlimited).
         config: navigator options.
         cache_dir: where collision grids are cached (None = the default cache).
+        view: the horizontal fields of view of the range sensors, base frame (:func:`simnav.navigation.sensing.
+            view_sectors` of the robot); with ``config.limit_to_view``, paths are free only as far as they stay
+            in view (None: everything counts as seen, as in §6.C).
     """
 
     def __init__(self, bands: Sequence[Band], max_v_m_s: float, max_w_rad_s: float, *,
                  max_acc_m_s2: float | None = None, max_ang_acc_rad_s2: float | None = None,
-                 config: NavigatorConfig | None = None, cache_dir: str | None = None) -> None:
+                 config: NavigatorConfig | None = None, cache_dir: str | None = None,
+                 view: Sequence[ViewSector] | None = None) -> None:
         from simnav.navigation.holonomic import make_holonomic
         from simnav.navigation.ptgspace import PTGSpace
 
@@ -261,6 +275,9 @@ class ReactiveNavigator3D:
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m
         self._tight_turn_radii_m = circumradii_m + min(cfg.footprint_margin_m, _TIGHT_TURN_MARGIN_M)
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
+        self.view = None if view is None else tuple(view)
+        self._view_limits = ([_view_limits(space, self.view, self.bands) for space in self._spaces]
+                             if self.view is not None and cfg.limit_to_view else None)
         self.reset()
 
     # ---------------------------------------------------------------------------------------------- targets
@@ -389,6 +406,8 @@ class ReactiveNavigator3D:
                 return self._output(0.0, 0.0, dt, t0, "reached")
         # TP-NavLimits per PTG: minimum over the bands (eq. 6.4); the bands' cells are found once for all PTGs
         limits = self._spaces[0].tp_limits_all(self._spaces, xy, ptr)
+        if self._view_limits is not None:  # what no sensor sees is not known to be free
+            limits = [np.minimum(lim, cap) for lim, cap in zip(limits, self._view_limits, strict=True)]
         target_index = self._reachable_target(T_odom_base, limits)
         T_base_odom = se2.inverse(T_odom_base)
         target_base = se2.transform_points(T_base_odom, self._waypoints[target_index][None])[0]
@@ -778,6 +797,25 @@ class ReactiveNavigator3D:
 _ND = NDConfig()
 _SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
 _TIGHT_TURN_MARGIN_M = 0.02  # clearance of the turning circle when turning in place is all the robot can do
+
+
+def _view_limits(space, view: Sequence[ViewSector], bands: Sequence[Band]) -> np.ndarray:
+    """(N,) per path of ``space``, the normalised distance up to which its reference point stays in view of a
+    sensor (or inside one of the robot's sections, where the robot stands now); 1 when it never leaves."""
+    ptg = space.ptg
+    n, s = ptg.dist_m.shape
+    xy = ptg.poses[..., :2].reshape(-1, 2)
+    seen = np.zeros(len(xy), dtype=bool)
+    for sector in view:
+        seen |= sector.contains(xy)
+    for band in bands:
+        seen |= points_in_polygon(xy, band.polygon)
+    seen = seen.reshape(n, s) | (np.arange(s)[None, :] >= ptg.num_samples[:, None])
+    out = np.ones(n)
+    for k in np.nonzero(~seen.all(axis=1))[0]:
+        first = int(np.argmin(seen[k]))
+        out[k] = ptg.dist_m[k, max(first - 1, 0)] / ptg.ref_distance_m
+    return out
 
 
 def _circles_free(xy: np.ndarray, ptr: np.ndarray, radii_m: np.ndarray) -> bool:

@@ -33,6 +33,59 @@ class SensingConfig:
     max_range_m: float = 8.0
 
 
+@dataclass(frozen=True)
+class ViewSector:
+    """Where one range sensor sees on the floor plane: a circular sector in the base frame.
+
+    Attributes:
+        x_m, y_m: apex (the sensor's position), m.
+        yaw_rad: direction of the sector's axis, rad.
+        half_angle_rad: half its opening (pi or more: all around), rad.
+        range_m: radius, m.
+    """
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    half_angle_rad: float
+    range_m: float
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """(P,) whether each of the (P, 2) points (base frame, m) lies in the sector."""
+        d = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - (self.x_m, self.y_m)
+        inside = np.hypot(d[:, 0], d[:, 1]) <= self.range_m
+        if self.half_angle_rad >= math.pi:
+            return inside
+        off = np.abs((np.arctan2(d[:, 1], d[:, 0]) - self.yaw_rad + math.pi) % (2 * math.pi) - math.pi)
+        return inside & (off <= self.half_angle_rad)
+
+
+def view_sectors(robot) -> list[ViewSector]:
+    """The horizontal fields of view of a robot's range sensors (lidars, 3D lidars, depth cameras), one sector each.
+
+    Args:
+        robot: a :class:`simnav.robot.spec.RobotSpec`.
+    """
+    from simnav.sensors.presets import resolve_lidar2d, resolve_lidar3d, resolve_rgbd
+
+    sectors = []
+    for sensor in robot.sensors:
+        if sensor.type == "lidar2d":
+            p = resolve_lidar2d(sensor)
+            half, reach = p.fov_rad / 2, p.max_range_m
+        elif sensor.type == "lidar3d":
+            half, reach = math.pi, resolve_lidar3d(sensor).max_range_m
+        elif sensor.type == "rgbd":
+            p = resolve_rgbd(sensor)
+            half = math.atan(math.tan(math.radians(p.fovy_deg) / 2) * p.width / p.height)
+            reach = p.max_range_m
+        else:
+            continue
+        T = sensor.mount.T_base_sensor()
+        sectors.append(ViewSector(float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0]), half, reach))
+    return sectors
+
+
 LEVEL_SCAN_TILT_RAD = math.radians(2.0)
 """A 2D lidar whose scan plane is tilted at most this much from the floor (upright or upside down) is level."""
 

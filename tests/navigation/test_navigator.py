@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -460,3 +461,23 @@ def test_no_turning_in_place_with_an_obstacle_inside_the_turning_circle(cache_di
     poses, commands = drive(nav, obstacles, (0.0, -2.0), 5.0)
     assert not any(c.state == "turning" for c in commands)
     assert footprint_distance(poses, obstacles[:, :2], BASE.polygon) > 0.02
+
+
+def test_paths_into_space_no_sensor_sees_are_not_free(cache_dir) -> None:
+    """A wall of people 0.75 m ahead across a corridor, a target beyond it, a 240-degree lidar: limited to its
+    view the robot waits; without, the paths that turn it around into the unseen space behind look free and it
+    turns."""
+    from simnav.navigation.sensing import ViewSector
+
+    lidar = ViewSector(0.2, 0.0, 0.0, math.radians(120.0), 5.0)
+    people = np.vstack([wall(0.75, -1.0, 0.75, 1.0, z) for z in (0.2, 0.7)])
+    seen_sides = np.vstack([wall(0.0, s, 3.0, s, z) for s in (-1.0, 1.0) for z in (0.2, 0.7)])
+    points = np.vstack([people, seen_sides])
+    chosen = {}
+    for name, limit in (("blind", False), ("view", True)):
+        nav = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, max_acc_m_s2=1.0, max_ang_acc_rad_s2=3.0,
+                                  config=replace(CONFIG, limit_to_view=limit), cache_dir=cache_dir, view=[lidar])
+        nav.set_target([4.0, 0.0])
+        chosen[name] = [nav.step(0.05 * k, np.eye(3), points) for k in range(10)][-1]
+    assert chosen["blind"].state == "navigating" and abs(chosen["blind"].w_rad_s) > 0.3
+    assert chosen["view"].state in ("waiting", "recovering") and chosen["view"].w_rad_s == 0.0

@@ -31,3 +31,15 @@ def test_level_scans_upright_or_upside_down_are_split_from_tilted_ones() -> None
     assert len(sensed.points_base(1.0, np.eye(3))) == 63               # all of them together
     sensed.reset()
     assert [len(p) for p in sensed.split_points_base(1.0, np.eye(3))] == [0, 0]
+
+
+def test_view_sectors_of_the_giraff_are_its_lidar_and_camera() -> None:
+    from simnav.navigation.sensing import ViewSector, view_sectors
+    from simnav.robot import load_robot
+
+    lidar, camera = view_sectors(load_robot("giraff"))
+    assert (lidar.x_m, lidar.half_angle_rad, lidar.range_m) == (0.22, math.radians(120.0), 5.6)
+    assert camera.x_m == 0.05 and 0.4 < camera.half_angle_rad < 0.6  # Kinect: 57 degrees across
+    behind, side, far = [-1.0, 0.0], [0.0, 1.0], [6.0, 0.0]
+    assert lidar.contains(np.array([behind, side, far])).tolist() == [False, True, False]
+    assert ViewSector(0.0, 0.0, 0.0, math.pi, 5.0).contains(np.array([behind])).tolist() == [True]
