@@ -46,6 +46,9 @@ def batch(
                                                         help="Override a world field (repeatable).")] = None,
     sim_set: Annotated[list[str] | None, typer.Option("--sim-set", metavar="KEY=VALUE",
                                                       help="Override a simulator field (repeatable).")] = None,
+    nav_set: Annotated[list[str] | None, typer.Option(
+        "--nav-set", metavar="KEY=VALUE", help="Override a navigator option (NavigatorConfig), e.g. "
+                                               "limit_to_view=true (repeatable).")] = None,
 ) -> None:
     """Run many seeded missions (or env rollouts) in parallel and report them together.
 
@@ -53,11 +56,11 @@ def batch(
     (mission-<seed>/) into --out. The same seeds give the same rows locally and on Ray.
     """
     _batch(missions, workers, ray_address, task, world, robot, targets, duration, agents, pose_source, nav, env,
-           policy, seed, out, robot_set, world_set, sim_set)
+           policy, seed, out, robot_set, world_set, sim_set, nav_set)
 
 
 def _batch(missions, workers, ray_address, task, world, robot, targets, duration, agents, pose_source, nav, env,
-           policy, seed, out, robot_set, world_set, sim_set) -> None:
+           policy, seed, out, robot_set, world_set, sim_set, nav_set=None) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from simnav.batch import run_batch
@@ -66,7 +69,7 @@ def _batch(missions, workers, ray_address, task, world, robot, targets, duration
         raise typer.BadParameter(f"--task must be mission or rollout, got '{task}'")
     out_dir = out or _run_dir("batch")
     jobs = (_mission_jobs(missions, world, robot, targets, duration, agents, pose_source, nav, seed, out_dir,
-                          robot_set, world_set, sim_set) if task == "mission"
+                          robot_set, world_set, sim_set, nav_set) if task == "mission"
             else _rollout_jobs(missions, env, policy, seed))
     where = f"on Ray ({ray_address})" if ray_address else f"on {workers or 'all'} local workers"
     with Progress(TextColumn(f"[bold]batch[/] {len(jobs)} {task}s {where}"), BarColumn(), MofNCompleteColumn(),
@@ -85,7 +88,7 @@ def _batch(missions, workers, ray_address, task, world, robot, targets, duration
 
 
 def _mission_jobs(count, world, robot, targets, duration, agents, pose_source, nav, seed, out_dir, robot_set,
-                  world_set, sim_set):
+                  world_set, sim_set, nav_set=None):
     """Validated jobs: every user error (unknown world, robot or pose source, bad field) before any worker starts."""
     from simnav.batch import mission_jobs
     from simnav.config import apply_overrides, validate
@@ -103,7 +106,8 @@ def _mission_jobs(count, world, robot, targets, duration, agents, pose_source, n
     sim_cfg = validate(SimConfig, {k: v for k, v in sim_data.items() if v is not None}, "--sim-set")
     settings = validate(MissionSettings, {"targets": targets if targets is not None or duration is not None else 2,
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
-                                          "nav": nav, "sim": sim_cfg.model_dump()}, "simnav batch")
+                                          "nav": nav, "sim": sim_cfg.model_dump(),
+                                          "navigator": apply_overrides({}, nav_set, "--nav-set")}, "simnav batch")
     return mission_jobs(count, world, robot, settings, out_dir=out_dir, world_set=tuple(world_set or ()),
                         robot_set=tuple(robot_set or ()))
 

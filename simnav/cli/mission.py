@@ -46,6 +46,9 @@ def mission(
                                                         help="Override a world field (repeatable).")] = None,
     sim_set: Annotated[list[str] | None, typer.Option(
         "--sim-set", metavar="KEY=VALUE", help="Override a simulator field, e.g. control_dt_s=0.1.")] = None,
+    nav_set: Annotated[list[str] | None, typer.Option(
+        "--nav-set", metavar="KEY=VALUE", help="Override a navigator option (NavigatorConfig), e.g. "
+                                               "limit_to_view=true (repeatable).")] = None,
 ) -> None:
     """Navigate to random roadmap targets with the 3D-PTG navigator, headless, and report how it went.
 
@@ -70,7 +73,8 @@ def mission(
     sim_cfg = validate(SimConfig, {k: v for k, v in sim_data.items() if v is not None}, "--sim-set")
     settings = validate(MissionSettings, {"targets": targets if targets is not None or duration is not None else 2,
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
-                                          "nav": nav, "memory": not no_memory, "sim": sim_cfg.model_dump()},
+                                          "nav": nav, "memory": not no_memory, "sim": sim_cfg.model_dump(),
+                                          "navigator": apply_overrides({}, nav_set, "--nav-set")},
                         "simnav mission")
     out_dir = out or _run_dir("mission")
     total = float(settings.targets) if settings.duration_s is None else settings.duration_s

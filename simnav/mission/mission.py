@@ -19,7 +19,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -34,7 +34,7 @@ from simnav.mission.observer import MissionFrame, MissionObserver
 from simnav.mission.pose import PoseSource
 from simnav.navigation.bands import planar_bands, robot_bands
 from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
-from simnav.navigation.sensing import SensedObstacles
+from simnav.navigation.sensing import SensedObstacles, view_sectors
 from simnav.robot.interface import RobotInterface
 from simnav.robot.spec import RobotSpec
 from simnav.sim import SimConfig, Simulator
@@ -87,13 +87,29 @@ class MissionSettings(FrozenModel):
     stuck_timeout_s: Annotated[float, Field(gt=0)] = 30.0
     max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
     memory: bool = True
+    navigator: dict[str, bool | int | float] = {}
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")
     def _budget(self) -> MissionSettings:
         if self.targets is None and self.duration_s is None:
             raise ValueError("give targets or duration_s")
+        navigator_config(self)  # unknown or bad navigator fields fail here, naming the field
         return self
+
+
+def navigator_config(settings: MissionSettings) -> NavigatorConfig:
+    """The navigator options of a mission: the product defaults, the mission's memory and stuck timeout, then
+    ``settings.navigator``'s overrides of scalar :class:`NavigatorConfig` fields (``--nav-set KEY=VALUE``)."""
+    known = {f.name for f in fields(NavigatorConfig) if f.name not in ("ptgs", "memory_config")}
+    unknown = sorted(set(settings.navigator) - known)
+    if unknown:
+        raise ValueError(f"navigator: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    try:
+        return NavigatorConfig(**{"memory": settings.memory, "stuck_timeout_s": settings.stuck_timeout_s,
+                                  **settings.navigator})
+    except ValueError as err:
+        raise ValueError(f"navigator: {err}") from None
 
 
 @dataclass
@@ -211,10 +227,11 @@ class _MissionRunner:
         self.sim = Simulator(world, robot, mission_sim_config(settings), seed=settings.seed)
         self.robot = (robot_factory or SimRobot)(self.sim)
         bands = robot_bands(robot) if settings.nav == "3d" else planar_bands(robot)
-        nav_cfg = NavigatorConfig(memory=settings.memory, stuck_timeout_s=settings.stuck_timeout_s)
+        nav_cfg = navigator_config(settings)
         drive = robot.drive
         self.nav = ReactiveNavigator3D(bands, drive.max_v_m_s, drive.max_w_rad_s, max_acc_m_s2=drive.max_acc_m_s2,
-                                       max_ang_acc_rad_s2=drive.max_ang_acc_rad_s2, config=nav_cfg)
+                                       max_ang_acc_rad_s2=drive.max_ang_acc_rad_s2, config=nav_cfg,
+                                       view=view_sectors(robot))
         self.obstacles = SensedObstacles()
         self.rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 7]))
         self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,

@@ -10,8 +10,15 @@ import numpy as np
 import pytest
 
 from simnav.io import read_tum
-from simnav.mission.mission import NAV_LOG_COLUMNS, MissionSettings, mission_robot, resume_route, run_mission
-from simnav.navigation.navigator import STATES
+from simnav.mission.mission import (
+    NAV_LOG_COLUMNS,
+    MissionSettings,
+    mission_robot,
+    navigator_config,
+    resume_route,
+    run_mission,
+)
+from simnav.navigation.navigator import STATES, NavigatorConfig
 from simnav.robot import load_robot
 from simnav.world import load_world
 
@@ -77,6 +84,8 @@ def test_an_odometry_pose_source_reports_its_drift(tmp_path):
     (["--pose-source", "sonar"], "unknown pose source 'sonar'"),
     (["--nav", "4d"], "--nav must be 3d or 2d"),
     (["--world", "atlantis"], "unknown world 'atlantis'"),
+    (["--nav-set", "limit_to_sight=true"], "unknown field(s) limit_to_sight"),
+    (["--nav-set", "secure_distance_m=9"], "secure_distance_m must be in [0, ref_distance_m)"),
 ])
 def test_bad_options_are_one_clear_error(args, message):
     result = simnav("mission", "--targets", "1", *args)
@@ -259,3 +268,10 @@ def test_targets_are_never_drawn_in_a_doors_swing():
         assert len(drawn) >= (~(runner._narrow | in_swing)).sum() - 2  # every other node can be drawn
     finally:
         runner.close()
+
+
+def test_navigator_options_reach_the_missions_navigator():
+    settings = MissionSettings(targets=1, memory=False, navigator={"limit_to_view": True, "secure_distance_m": 0.2})
+    config = navigator_config(settings)
+    assert (config.limit_to_view, config.secure_distance_m, config.memory) == (True, 0.2, False)
+    assert navigator_config(MissionSettings(targets=1)) == NavigatorConfig()
