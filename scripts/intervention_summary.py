@@ -1,0 +1,75 @@
+"""What the robot did before each intervention of a mission batch (or of one mission folder).
+
+For every intervention in ``DIR/mission-*/report.json`` (or ``DIR/report.json``), the navigator's states over the
+``--window`` seconds before it (from ``navigation.csv``), the path length driven and the total turning (sum of the
+absolute heading changes) in that window: a robot turning back and forth in place turns hundreds of degrees while
+driving almost nothing, a waiting one neither.
+
+    python scripts/intervention_summary.py DIR [--window 30] [--turned 400]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+from collections import Counter
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+
+def mission_dirs(root: Path) -> list[Path]:
+    """Mission folders under ``root`` (itself when it holds a report), by seed."""
+    if (root / "report.json").is_file():
+        return [root]
+    dirs = [d for d in root.glob("mission-*") if (d / "report.json").is_file()]
+    return sorted(dirs, key=lambda d: int(d.name.split("-")[-1]) if d.name.split("-")[-1].isdigit() else 0)
+
+
+def window_summary(rows: list[dict], t_s: float, window_s: float) -> tuple[Counter, float, float]:
+    """States (count of control steps), path length (m) and total turning (deg) in ``[t_s - window_s, t_s)``."""
+    w = [r for r in rows if t_s - window_s <= float(r["time_s"]) < t_s]
+    states = Counter(r["state"] for r in w)
+    path_m = sum(math.hypot(float(b["x_m"]) - float(a["x_m"]), float(b["y_m"]) - float(a["y_m"]))
+                 for a, b in zip(w, w[1:], strict=False))
+    turned = sum(abs((float(b["yaw_rad"]) - float(a["yaw_rad"]) + math.pi) % (2 * math.pi) - math.pi)
+                 for a, b in zip(w, w[1:], strict=False))
+    return states, path_m, math.degrees(turned)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("dir", type=Path, help="a simnav batch --out folder, or one mission's folder")
+    parser.add_argument("--window", type=float, default=30.0, help="seconds before each intervention")
+    parser.add_argument("--turned", type=float, default=400.0, help="count interventions with more turning, deg")
+    args = parser.parse_args()
+    console = Console()
+    dirs = mission_dirs(args.dir)
+    if not dirs:
+        console.print(f"[red]{args.dir}: no report.json in it or in its mission-*/ folders")
+        raise SystemExit(2)
+    table = Table("mission", "time (s)", "x, y (m)", "states in the window (share of steps)", "path (m)",
+                  "turned (deg)", title=f"the {args.window:.0f} s before each intervention")
+    total = turning = 0
+    for d in dirs:
+        report = json.loads((d / "report.json").read_text())
+        nav_csv = d / "navigation.csv"
+        rows = list(csv.DictReader(nav_csv.open())) if nav_csv.is_file() else []
+        for event in report.get("intervention_log", []):
+            states, path_m, turned = window_summary(rows, event["time_s"], args.window)
+            n = max(sum(states.values()), 1)
+            shares = ", ".join(f"{k} {v / n:.0%}" for k, v in states.most_common())
+            table.add_row(d.name, f"{event['time_s']:.0f}", f"{event['x_m']:.1f}, {event['y_m']:.1f}", shares,
+                          f"{path_m:.2f}", f"{turned:.0f}")
+            total += 1
+            turning += turned > args.turned
+    console.print(table)
+    console.print(f"{total} interventions in {len(dirs)} missions; {turning} with more than {args.turned:.0f} deg "
+                  f"of turning in the window")
+
+
+if __name__ == "__main__":
+    main()
