@@ -48,7 +48,7 @@ def batch(
                                                       help="Override a simulator field (repeatable).")] = None,
     nav_set: Annotated[list[str] | None, typer.Option(
         "--nav-set", metavar="KEY=VALUE", help="Override a navigator option (NavigatorConfig), e.g. "
-                                               "limit_to_view=true (repeatable).")] = None,
+                                               "limit_to_view=true or memory_config.decay_s=10 (repeatable).")] = None,
 ) -> None:
     """Run many seeded missions (or env rollouts) in parallel and report them together.
 

@@ -48,7 +48,7 @@ def mission(
         "--sim-set", metavar="KEY=VALUE", help="Override a simulator field, e.g. control_dt_s=0.1.")] = None,
     nav_set: Annotated[list[str] | None, typer.Option(
         "--nav-set", metavar="KEY=VALUE", help="Override a navigator option (NavigatorConfig), e.g. "
-                                               "limit_to_view=true (repeatable).")] = None,
+                                               "limit_to_view=true or memory_config.decay_s=10 (repeatable).")] = None,
 ) -> None:
     """Navigate to random roadmap targets with the 3D-PTG navigator, headless, and report how it went.
 

@@ -33,6 +33,7 @@ from simnav.io import TumWriter, json_finite
 from simnav.mission.observer import MissionFrame, MissionObserver
 from simnav.mission.pose import PoseSource
 from simnav.navigation.bands import planar_bands, robot_bands
+from simnav.navigation.memory import MemoryConfig
 from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
 from simnav.navigation.sensing import SensedObstacles, view_sectors
 from simnav.robot.interface import RobotInterface
@@ -87,7 +88,7 @@ class MissionSettings(FrozenModel):
     stuck_timeout_s: Annotated[float, Field(gt=0)] = 30.0
     max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
     memory: bool = True
-    navigator: dict[str, bool | int | float] = {}
+    navigator: dict[str, bool | int | float | dict[str, bool | int | float]] = {}
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")
@@ -100,16 +101,31 @@ class MissionSettings(FrozenModel):
 
 def navigator_config(settings: MissionSettings) -> NavigatorConfig:
     """The navigator options of a mission: the product defaults, the mission's memory and stuck timeout, then
-    ``settings.navigator``'s overrides of scalar :class:`NavigatorConfig` fields (``--nav-set KEY=VALUE``)."""
-    known = {f.name for f in fields(NavigatorConfig) if f.name not in ("ptgs", "memory_config")}
-    unknown = sorted(set(settings.navigator) - known)
-    if unknown:
-        raise ValueError(f"navigator: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    ``settings.navigator``'s overrides of scalar :class:`NavigatorConfig` fields and of the short-term memory's
+    :class:`MemoryConfig` fields under ``memory_config`` (``--nav-set KEY=VALUE``,
+    ``--nav-set memory_config.decay_s=10``)."""
+    options = dict(settings.navigator)
+    memory = options.pop("memory_config", {})
+    if not isinstance(memory, dict):
+        raise ValueError(f"navigator: memory_config takes fields (memory_config.decay_s=10), got {memory!r}")
+    _check_fields("navigator", options, NavigatorConfig, skip=("ptgs", "memory_config"))
+    _check_fields("navigator: memory_config", memory, MemoryConfig)
+    nested = [k for k, v in options.items() if isinstance(v, dict)]
+    if nested:
+        raise ValueError(f"navigator: {', '.join(nested)} takes a value, not fields")
     try:
         return NavigatorConfig(**{"memory": settings.memory, "stuck_timeout_s": settings.stuck_timeout_s,
-                                  **settings.navigator})
+                                  **options, "memory_config": MemoryConfig(**memory)})
     except ValueError as err:
         raise ValueError(f"navigator: {err}") from None
+
+
+def _check_fields(what: str, options: dict, config_type: type, skip: Sequence[str] = ()) -> None:
+    """One error naming every key of ``options`` that is not a field of the dataclass ``config_type``."""
+    known = {f.name for f in fields(config_type) if f.name not in skip}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ValueError(f"{what}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
 
 
 @dataclass

@@ -18,6 +18,7 @@ from simnav.mission.mission import (
     resume_route,
     run_mission,
 )
+from simnav.navigation.memory import MemoryConfig
 from simnav.navigation.navigator import STATES, NavigatorConfig
 from simnav.robot import load_robot
 from simnav.world import load_world
@@ -86,6 +87,9 @@ def test_an_odometry_pose_source_reports_its_drift(tmp_path):
     (["--world", "atlantis"], "unknown world 'atlantis'"),
     (["--nav-set", "limit_to_sight=true"], "unknown field(s) limit_to_sight"),
     (["--nav-set", "secure_distance_m=9"], "secure_distance_m must be in [0, ref_distance_m)"),
+    (["--nav-set", "memory_config.half_life_s=3"], "memory_config: unknown field(s) half_life_s"),
+    (["--nav-set", "memory_config.decay_s=0"], "decay_s must be > 0"),
+    (["--nav-set", "memory_config=3"], "memory_config takes fields"),
 ])
 def test_bad_options_are_one_clear_error(args, message):
     result = simnav("mission", "--targets", "1", *args)
@@ -271,7 +275,9 @@ def test_targets_are_never_drawn_in_a_doors_swing():
 
 
 def test_navigator_options_reach_the_missions_navigator():
-    settings = MissionSettings(targets=1, memory=False, navigator={"limit_to_view": True, "secure_distance_m": 0.2})
+    settings = MissionSettings(targets=1, memory=False, navigator={"limit_to_view": True, "secure_distance_m": 0.2,
+                                                                   "memory_config": {"decay_s": 10}})
     config = navigator_config(settings)
     assert (config.limit_to_view, config.secure_distance_m, config.memory) == (True, 0.2, False)
+    assert config.memory_config == MemoryConfig(decay_s=10.0)
     assert navigator_config(MissionSettings(targets=1)) == NavigatorConfig()
