@@ -1,9 +1,11 @@
 """What the robot did before each intervention of a mission batch (or of one mission folder).
 
-For every intervention in ``DIR/mission-*/report.json`` (or ``DIR/report.json``), the navigator's states over the
-``--window`` seconds before it (from ``navigation.csv``), the path length driven and the total turning (sum of the
-absolute heading changes) in that window: a robot turning back and forth in place turns hundreds of degrees while
-driving almost nothing, a waiting one neither.
+For every intervention in ``DIR/mission-*/report.json`` (a batch), ``DIR/seed-*/report.json`` (a long run of
+``scripts/reproduce_nav_experiments.py``) or ``DIR/report.json``, the navigator's states over the ``--window``
+seconds before it (from ``navigation.csv``), the path length driven and the total turning (sum of the absolute
+heading changes) in that window: a robot turning back and forth in place turns hundreds of degrees while driving
+almost nothing, a waiting one neither. The last line counts each kind: *turning* (more than ``--turned``),
+*boxed in* (otherwise, mostly waiting, recovering or blocked), *driving* (the rest).
 
     python scripts/intervention_summary.py DIR [--window 30] [--turned 400]
 """
@@ -25,7 +27,7 @@ def mission_dirs(root: Path) -> list[Path]:
     """Mission folders under ``root`` (itself when it holds a report), by seed."""
     if (root / "report.json").is_file():
         return [root]
-    dirs = [d for d in root.glob("mission-*") if (d / "report.json").is_file()]
+    dirs = [d for d in [*root.glob("mission-*"), *root.glob("seed-*")] if (d / "report.json").is_file()]
     return sorted(dirs, key=lambda d: int(d.name.split("-")[-1]) if d.name.split("-")[-1].isdigit() else 0)
 
 
@@ -40,6 +42,15 @@ def window_summary(rows: list[dict], t_s: float, window_s: float) -> tuple[Count
     return states, path_m, math.degrees(turned)
 
 
+def kind(states: Counter, turned_deg: float, turned_limit_deg: float) -> str:
+    """What the robot mostly did before an intervention: ``turning``, ``boxed in`` or ``driving``."""
+    if turned_deg > turned_limit_deg:
+        return "turning"
+    n = max(sum(states.values()), 1)
+    held = sum(states[s] for s in ("waiting", "recovering", "blocked"))
+    return "boxed in" if held / n >= 0.5 else "driving"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("dir", type=Path, help="a simnav batch --out folder, or one mission's folder")
@@ -49,11 +60,11 @@ def main() -> None:
     console = Console()
     dirs = mission_dirs(args.dir)
     if not dirs:
-        console.print(f"[red]{args.dir}: no report.json in it or in its mission-*/ folders")
+        console.print(f"[red]{args.dir}: no report.json in it or in its mission-*/ or seed-*/ folders")
         raise SystemExit(2)
     table = Table("mission", "time (s)", "x, y (m)", "states in the window (share of steps)", "path (m)",
                   "turned (deg)", title=f"the {args.window:.0f} s before each intervention")
-    total = turning = 0
+    kinds: Counter = Counter()
     for d in dirs:
         report = json.loads((d / "report.json").read_text())
         nav_csv = d / "navigation.csv"
@@ -64,11 +75,11 @@ def main() -> None:
             shares = ", ".join(f"{k} {v / n:.0%}" for k, v in states.most_common())
             table.add_row(d.name, f"{event['time_s']:.0f}", f"{event['x_m']:.1f}, {event['y_m']:.1f}", shares,
                           f"{path_m:.2f}", f"{turned:.0f}")
-            total += 1
-            turning += turned > args.turned
+            kinds[kind(states, turned, args.turned)] += 1
     console.print(table)
-    console.print(f"{total} interventions in {len(dirs)} missions; {turning} with more than {args.turned:.0f} deg "
-                  f"of turning in the window")
+    console.print(f"{sum(kinds.values())} interventions in {len(dirs)} missions: {kinds['turning']} turning (more "
+                  f"than {args.turned:.0f} deg in the window), {kinds['boxed in']} boxed in, {kinds['driving']} "
+                  "driving")
 
 
 if __name__ == "__main__":
