@@ -396,11 +396,12 @@ class Crowd:
         """Pauses run down and new goals; waypoints reached, counting a robot (in (C, 3) ``circles``) standing on
         the target as there."""
         plans = (self._pos, self._target, self._path_xy, self._wp, self._last_wp)
-        due, events = crowd_plan_events(self._pause_s, self._arrived, dt_s, plans, circles, self._limits)
+        walls = (self._walls.start, self._walls.delta)
+        due, events = crowd_plan_events(self._pause_s, self._arrived, dt_s, plans, circles, self._limits, walls)
         if len(due):
             for k in due:
                 self._plan(int(k), int(self._goals[k]))
-            events = crowd_advance(self._arrived, plans, circles, self._limits)
+            events = crowd_advance(self._arrived, plans, circles, self._limits, walls)
         if len(events):
             self._settle(events)
 

@@ -697,7 +697,7 @@ def _cell_list(origin: np.ndarray, cell_m: float, ny: int, c: int, start: np.nda
 
 @njit(cache=True, error_model="numpy")
 def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, plans: tuple, circles: np.ndarray,
-                      limits: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+                      limits: tuple[float, float, float, float], walls: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Run the pauses (N,) of those who arrived down by ``dt_s`` seconds (in place).
 
     Returns the indices of those whose pause is over (due for a new goal), and, when there are none, the events of
@@ -714,20 +714,23 @@ def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, pla
                 count += 1
     if count:
         return due[:count], np.empty((0, 2), dtype=np.int64)
-    return due[:0], crowd_advance(arrived, plans, circles, limits)
+    return due[:0], crowd_advance(arrived, plans, circles, limits, walls)
 
 
 @njit(cache=True, error_model="numpy")
 def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
-                  limits: tuple[float, float, float, float]) -> np.ndarray:
+                  limits: tuple[float, float, float, float], walls: tuple) -> np.ndarray:
     """Move the walking pedestrians within reach of their targets on along their paths (in place).
 
     ``plans`` = (pos (N, 2), targets (N, 2), paths (N, K, 2) (metres), waypoint indices (N,), index of the goal
     in each path (N,)); ``limits`` = (reach of the goal, of the other waypoints, pedestrian radius, occupied
-    margin), metres. Within reach: closer than that, plus :func:`_occupied_extra` of the (C, 3) ``circles`` (a
-    robot standing on the target: nobody walks onto someone else's spot, so without it, people whose next roadmap
-    node a robot stands on would circle it for ever). A pedestrian takes the next waypoints until one is out of
-    reach (then without the extra), or arrives.
+    margin), metres; ``walls`` = (start (M, 2), delta (M, 2)) of the static wall segments, metres. Within reach:
+    closer than that, plus :func:`_occupied_extra` of the (C, 3) ``circles`` (a robot standing on the target:
+    nobody walks onto someone else's spot, so without it, people whose next roadmap node a robot stands on would
+    circle it for ever) when the waypoint after the target is in sight (or the target is the goal): else a
+    person in a doorway, with a robot on the node outside it, headed for the node after it straight into the
+    door jamb and stayed pressed there. A pedestrian takes the next waypoints until one is out of reach (then
+    without the extra), or arrives.
 
     Returns:
         (E, 2) events [pedestrian, kind], ascending: kind 0, it arrived (and needs a pause); kind 1, the distance
@@ -736,7 +739,7 @@ def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
     """
     pos, target, paths, wp, last_wp = plans
     goal_m, waypoint_m, radius_m, margin_m = limits
-    reached = _reached(pos, target, wp, last_wp, arrived, circles, limits)
+    reached = _reached(pos, target, paths, wp, last_wp, arrived, circles, limits, walls)
     events = np.empty((reached.shape[0], 2), dtype=np.int64)
     count = 0
     for i in reached:
@@ -760,8 +763,9 @@ def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
 
 
 @njit(cache=True, error_model="numpy")
-def _reached(pos: np.ndarray, target: np.ndarray, wp: np.ndarray, last_wp: np.ndarray, arrived: np.ndarray,
-             circles: np.ndarray, limits: tuple[float, float, float, float]) -> np.ndarray:
+def _reached(pos: np.ndarray, target: np.ndarray, paths: np.ndarray, wp: np.ndarray, last_wp: np.ndarray,
+             arrived: np.ndarray, circles: np.ndarray, limits: tuple[float, float, float, float],
+             walls: tuple) -> np.ndarray:
     """Indices of the walking pedestrians within reach of their targets (see :func:`crowd_advance`)."""
     goal_m, waypoint_m, radius_m, margin_m = limits
     n = pos.shape[0]
@@ -769,12 +773,28 @@ def _reached(pos: np.ndarray, target: np.ndarray, wp: np.ndarray, last_wp: np.nd
     out = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
+        if arrived[i]:
+            continue
         dx, dy = target[i, 0] - pos[i, 0], target[i, 1] - pos[i, 1]
-        reach = (goal_m if wp[i] == last_wp[i] else waypoint_m) + extra[i]
-        if not arrived[i] and math.sqrt(dx * dx + dy * dy) < reach:
+        last = wp[i] == last_wp[i]
+        dist, reach = math.sqrt(dx * dx + dy * dy), goal_m if last else waypoint_m
+        if dist >= reach and extra[i] > 0.0 and dist < reach + extra[i] and not last:
+            nxt = paths[i, wp[i] + 1]
+            if not _in_sight(pos[i, 0], pos[i, 1], nxt[0], nxt[1], walls[0], walls[1]):
+                continue
+        if dist < reach + extra[i]:
             out[count] = i
             count += 1
     return out[:count]
+
+
+@njit(cache=True, error_model="numpy")
+def _in_sight(px: float, py: float, qx: float, qy: float, start: np.ndarray, delta: np.ndarray) -> bool:
+    """Whether the straight segment p → q touches none of the (M, 2) segments start → start + delta."""
+    for s in range(start.shape[0]):
+        if _crosses(px, py, qx, qy, start[s, 0], start[s, 1], delta[s, 0], delta[s, 1]):
+            return False
+    return True
 
 
 @njit(cache=True, error_model="numpy")

@@ -16,7 +16,7 @@ import pytest
 from simnav.agents import Crowd, RoadmapGraph, Wanderers
 from simnav.agents import crowd as crowd_module
 from simnav.agents import wanderers as wanderers_module
-from simnav.agents.crowd import SegmentGrid, grid_lists_reference, wrap_angle
+from simnav.agents.crowd import SegmentGrid, _visible, grid_lists_reference, wrap_angle
 from simnav.agents.kernels import _desired_update, closest_in_way, crowd_advance, grid_lists
 from simnav.agents.social_force import (
     Segments,
@@ -75,8 +75,12 @@ class ReferenceCrowd(Crowd):
             c, r = np.asarray(circles, dtype=float).reshape(-1, 3), self.radius_m
             gap = np.linalg.norm(self._target[:, None] - c[None, :, :2], axis=2) - c[:, 2] - r
             extra = np.max(np.where(gap < crowd_module.OCCUPIED_MARGIN_M, c[:, 2] + r, 0.0), axis=1)
-        reach = np.where(last, crowd_module.GOAL_REACHED_M, crowd_module.WAYPOINT_REACHED_M) + extra
-        for k in np.nonzero(~self._arrived & (dist < reach))[0]:
+        reach = np.where(last, crowd_module.GOAL_REACHED_M, crowd_module.WAYPOINT_REACHED_M)
+        for k in np.nonzero(~self._arrived & (dist < reach + extra))[0]:
+            # the robot's extra counts only when the waypoint after the target is in sight (or it is the goal)
+            next_xy = self._path_xy[k, min(self._wp[k] + 1, self._last_wp[k])]
+            if dist[k] >= reach[k] and not last[k] and not _visible(self._pos[k], next_xy, self._walls):
+                continue
             self._advance(int(k))
 
     def _reference_yaws(self, dt_s):
@@ -172,7 +176,8 @@ def test_a_waypoint_at_the_reach_within_rounding_is_settled_with_numpy(next_x: f
         c._wp[0], c._last_wp[0], c._arrived[0] = 0, 2, False
         c._set_target(0)
     plans = (crowds[0]._pos, crowds[0]._target.copy(), crowds[0]._path_xy, crowds[0]._wp.copy(), crowds[0]._last_wp)
-    events = crowd_advance(crowds[0]._arrived.copy(), plans, np.zeros((0, 3)), crowds[0]._limits)
+    walls = (crowds[0]._walls.start, crowds[0]._walls.delta)
+    events = crowd_advance(crowds[0]._arrived.copy(), plans, np.zeros((0, 3)), crowds[0]._limits, walls)
     np.testing.assert_array_equal(events, [[0, 1]])  # the kernel leaves it to numpy's norm
     crowds[0]._update_plans(0.1, np.zeros((0, 3)))
     crowds[1]._reference_plans(0.1, None)
@@ -225,3 +230,20 @@ def test_wanderer_step_matches_the_numpy_formulation() -> None:
         for name in ("positions_xy", "velocities_xy", "yaws_rad", "yaw_rates_rad_s"):
             np.testing.assert_allclose(getattr(bots, name), getattr(reference, name), rtol=1e-12, atol=1e-12,
                                        err_msg=f"{name}, step {k}")
+
+
+@pytest.mark.parametrize(("jamb", "expected_wp"), [(False, 2), (True, 1)])
+def test_a_robot_on_the_next_node_counts_as_passed_only_with_the_node_after_it_in_sight(
+        jamb: bool, expected_wp: int) -> None:
+    # a person in a doorway (x = 0) heading for the corridor node 1 m ahead, on which a robot stands; the node
+    # after it lies down the corridor, behind the doorway's jamb when there is one
+    path = np.array([[0.0, 1.5], [0.0, 0.0], [-3.0, 0.0]])
+    walls = np.array([[[-2.0, 0.6], [-0.45, 0.6]], [[0.45, 0.6], [2.0, 0.6]]]) if jamb else np.zeros((0, 2, 2))
+    crowd = Crowd(RoadmapGraph(path, [(0, 1), (1, 2)]), walls, 1, np.random.default_rng(0))
+    crowd._pos = np.array([[0.0, 0.95]])
+    crowd._path_xy[0, :3] = path
+    crowd._wp[0], crowd._last_wp[0], crowd._arrived[0] = 1, 2, False
+    crowd._set_target(0)
+    robot = np.array([[0.0, -0.1, 0.3]])
+    crowd._update_plans(0.1, robot + [0.0, 0.0, crowd._params.circle_clearance_m])
+    assert crowd._wp[0] == expected_wp
