@@ -300,8 +300,8 @@ def door_starts(count: int, seed: int, world: WorldSpec, robot: RobotSpec) -> li
 def run_door(job: DoorJob) -> DoorResult:
     started = time.perf_counter()
     world = with_spawn(load_world(job.world), *job.start)
-    settings = MissionSettings(targets=1, seed=job.seed, nav=job.nav, memory=False,
-                               sim=SimConfig(pedestrians=0, wanderers=0))
+    settings = MissionSettings(targets=1, seed=job.seed, nav=job.nav, memory=False, keep_right_m=0.0,
+                               sim=SimConfig(pedestrians=0, wanderers=0))  # on the roadmap's line, as measured
     robot = mission_robot(with_max_speed(load_robot("giraff"), DOOR_SPEED_M_S), settings)
     runner = ScenarioRunner(world, robot, settings, NAV_CONFIGS[job.config])
     try:
@@ -406,8 +406,8 @@ def run_desks(nav: str, visits: int, seed: int, people: int, timeout_s: float, t
               approach: bool = True, on_visit: Callable[[int], None] | None = None) -> DeskResult:
     started = time.perf_counter()
     world = load_world("desks")
-    settings = MissionSettings(targets=1, seed=seed, nav=nav, memory=True, sim=SimConfig(pedestrians=people,
-                                                                                            wanderers=0))
+    settings = MissionSettings(targets=1, seed=seed, nav=nav, memory=True, keep_right_m=0.0,  # as measured
+                               sim=SimConfig(pedestrians=people, wanderers=0))
     robot = mission_robot(load_robot("rhodon"), settings)
     desks = desk_nodes(world)
     aisle = np.array([i for i in range(len(world.roadmap.nodes)) if i not in desks])

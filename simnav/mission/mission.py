@@ -76,6 +76,13 @@ DOOR_APPROACH_M = 0.6
 left through one as far after it), so that the robot lines up with a doorway instead of cutting into it at an
 angle, m (at most half the distance to that node)."""
 
+KEEP_RIGHT_WALL_M = 0.2
+"""A waypoint moved to the right of the route (``MissionSettings.keep_right_m``) keeps the robot's circumradius plus
+this much from every static obstacle, m."""
+
+STRAIGHT_NODE_RAD = math.radians(30.0)
+"""Only nodes where the route turns by less than this are moved to the right of it, rad."""
+
 
 class MissionSettings(FrozenModel):
     """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator."""
@@ -88,6 +95,7 @@ class MissionSettings(FrozenModel):
     stuck_timeout_s: Annotated[float, Field(gt=0)] = 30.0
     max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
     memory: bool = True
+    keep_right_m: Annotated[float, Field(ge=0, le=2)] = 0.4
     navigator: dict[str, bool | int | float | dict[str, bool | int | float]] = {}
     sim: SimConfig = SimConfig()
 
@@ -257,6 +265,8 @@ class _MissionRunner:
         self._narrow = node_clearance_m < NARROW_NODE_CLEARANCE_M
         self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
         self._turnable = node_clearance_m >= self._circumradius_m + self.nav.config.footprint_margin_m
+        room_m = node_clearance_m - self._circumradius_m - KEEP_RIGHT_WALL_M
+        self._keep_right_m = np.clip(room_m, 0.0, settings.keep_right_m)
         # nodes where the robot would stand in a door's swing: the leaf, open or moving, blocks it there, and a
         # robot waiting there keeps the door open
         in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
@@ -383,7 +393,8 @@ class _MissionRunner:
     def _follow(self, route: list[int]) -> None:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
         xy, skip, near, heading = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
-                                                  self.nav.config.waypoint_allowed_distance_m, self._turnable)
+                                                  self.nav.config.waypoint_allowed_distance_m, self._turnable,
+                                                  self._keep_right_m)
         self._route_xy = xy
         self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading)
 
@@ -592,7 +603,8 @@ def _write_nav_log(path: Path, rows: list[tuple]) -> None:
 
 
 def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray, free_m: float,
-                    turnable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    turnable: np.ndarray | None = None, keep_right_m: np.ndarray | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
     previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
@@ -601,7 +613,11 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
     narrow node after one where the robot cannot turn in place (a doorway), where it can (``turnable``: the
     hallway outside the doorway) and the route turns by more than ``TURNING_NODE_RAD``, is passed within
     ``DOOR_APPROACH_TOLERANCE_M`` (the navigator then turns in place towards the next waypoint): a robot that
-    counted it as passed from the doorway started turning the wrong way and met the hallway's far wall.
+    counted it as passed from the doorway started turning the wrong way and met the hallway's far wall. A node
+    between two wide ones where the route goes on straight (turns by less than ``STRAIGHT_NODE_RAD``) is moved
+    ``keep_right_m`` to the right of the route: the robot keeps to the right of a corridor, as people do, and
+    leaves them the rest of it to pass (on the centre line, where the roadmap runs, it left 0.1 m each side of
+    its personal space in the office's 2.2 m corridor, and people going the other way jammed in front of it).
 
     Args:
         nodes_xy: (N, 2) roadmap nodes, m.
@@ -609,6 +625,7 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
         narrow: (N,) which nodes are narrow.
         free_m: allowed distance of the other nodes, m.
         turnable: (N,) where the robot can turn in place (default nowhere).
+        keep_right_m: (N,) how far each node may be moved to the right of the route, m (default: not moved).
 
     Returns:
         (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m), (W,) heading to pass them at (rad,
@@ -625,7 +642,7 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
     for i, node in enumerate(route):
         p = nodes_xy[node]
         if not narrow[node]:
-            add(p, True, free_m)
+            add(_right_of_route(nodes_xy, route, i, narrow, keep_right_m), True, free_m)
             continue
         if i > 0:
             # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach
@@ -659,6 +676,20 @@ def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray,
     while start < len(route) - 1 and unfit[route[start]]:
         start += 1
     return list(route[start:])
+
+
+def _right_of_route(nodes_xy: np.ndarray, route: Sequence[int], i: int, narrow: np.ndarray,
+                    keep_right_m: np.ndarray | None) -> np.ndarray:
+    """The route's i-th node, moved ``keep_right_m`` to the right of the route where it goes on straight between
+    two wide nodes (see :func:`route_waypoints`), m."""
+    p = nodes_xy[route[i]]
+    if keep_right_m is None or i == 0 or i == len(route) - 1 or keep_right_m[route[i]] <= 0.0:
+        return p
+    if narrow[route[i - 1]] or narrow[route[i + 1]] or abs(_route_turn_rad(nodes_xy, route, i)) >= STRAIGHT_NODE_RAD:
+        return p
+    along = nodes_xy[route[i + 1]] - nodes_xy[route[i - 1]]
+    along = along / np.linalg.norm(along)
+    return p + keep_right_m[route[i]] * np.array([along[1], -along[0]])
 
 
 def _route_turn_rad(nodes_xy: np.ndarray, route: Sequence[int], i: int) -> float:

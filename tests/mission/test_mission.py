@@ -221,6 +221,24 @@ def test_the_hallway_outside_a_doorway_is_reached_close_by_where_the_route_turns
     assert tolerance_at([0, 1, 2, 3, 4], [0.0, 0.0], None) == NARROW_NODE_TOLERANCE_M
 
 
+def test_the_route_keeps_to_the_right_where_it_goes_on_straight_between_wide_nodes():
+    from simnav.mission.mission import route_waypoints
+
+    # a corridor along +x (nodes 0-3), a room off it at node 2 (node 4, through the doorway 5)
+    nodes = np.array([[0.0, 0.0], [2.0, 0.0], [4.0, 0.0], [6.0, 0.0], [4.0, 3.0], [4.0, 1.0]])
+    narrow = np.array([False, False, False, False, False, True])
+    room = np.array([0.4, 0.4, 0.4, 0.25, 0.4, 0.0])  # node 3 is near a pillar
+    xy, *_ = route_waypoints(nodes, [0, 1, 2, 3], narrow, 1.0, None, room)
+    np.testing.assert_allclose(xy, [[0, 0], [2, -0.4], [4, -0.4], [6, 0]])  # ends where they are; right of +x
+    xy, *_ = route_waypoints(nodes, [3, 2, 1, 0], narrow, 1.0, None, room)
+    np.testing.assert_allclose(xy, [[6, 0], [4, 0.4], [2, 0.4], [0, 0]])  # heading -x: right is +y
+    # turning at node 2 into the doorway: node 2 stays where it is (the doorway is lined up from there)
+    xy, *_ = route_waypoints(nodes, [0, 1, 2, 5, 4], narrow, 1.0, None, room)
+    np.testing.assert_allclose(xy[:3], [[0, 0], [2, -0.4], [4, 0]])
+    xy, *_ = route_waypoints(nodes, [0, 1, 2, 3], narrow, 1.0)  # not asked for: on the roadmap
+    np.testing.assert_allclose(xy, nodes[:4])
+
+
 def test_an_intervention_sets_the_robot_down_past_doorways():
     narrow = np.zeros(10, dtype=bool)
     narrow[[5, 6]] = True  # a doorway and the node inside it
