@@ -778,13 +778,14 @@ def _reached(pos: np.ndarray, target: np.ndarray, paths: np.ndarray, wp: np.ndar
         dx, dy = target[i, 0] - pos[i, 0], target[i, 1] - pos[i, 1]
         last = wp[i] == last_wp[i]
         dist, reach = math.sqrt(dx * dx + dy * dy), goal_m if last else waypoint_m
-        if dist >= reach and extra[i] > 0.0 and dist < reach + extra[i] and not last:
+        if dist >= reach + extra[i]:
+            continue
+        if dist >= reach and not last:  # reached only thanks to a robot on the target
             nxt = paths[i, wp[i] + 1]
             if not _in_sight(pos[i, 0], pos[i, 1], nxt[0], nxt[1], walls[0], walls[1]):
                 continue
-        if dist < reach + extra[i]:
-            out[count] = i
-            count += 1
+        out[count] = i
+        count += 1
     return out[:count]
 
 
