@@ -5,7 +5,9 @@ For every intervention in ``DIR/mission-*/report.json`` (a batch), ``DIR/seed-*/
 seconds before it (from ``navigation.csv``), the path length driven and the total turning (sum of the absolute
 heading changes) in that window: a robot turning back and forth in place turns hundreds of degrees while driving
 almost nothing, a waiting one neither. The last line counts each kind: *turning* (more than ``--turned``),
-*boxed in* (otherwise, mostly waiting, recovering or blocked), *driving* (the rest).
+*boxed in* (otherwise, mostly waiting, recovering or blocked), *driving* (the rest). A last line sums up the
+whole missions: path driven, total turning and the time spent turning on the spot (commanded speed under
+``ON_THE_SPOT_M_S`` and yaw rate over ``ON_THE_SPOT_RAD_S``).
 
     python scripts/intervention_summary.py DIR [--window 30] [--turned 400]
 """
@@ -22,6 +24,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+ON_THE_SPOT_M_S = 0.05
+ON_THE_SPOT_RAD_S = 0.2
+SET_DOWN_JUMP_M = 0.5  # a longer step between two rows is an intervention setting the robot down elsewhere
+
 
 def mission_dirs(root: Path) -> list[Path]:
     """Mission folders under ``root`` (itself when it holds a report), by seed."""
@@ -34,12 +40,26 @@ def mission_dirs(root: Path) -> list[Path]:
 def window_summary(rows: list[dict], t_s: float, window_s: float) -> tuple[Counter, float, float]:
     """States (count of control steps), path length (m) and total turning (deg) in ``[t_s - window_s, t_s)``."""
     w = [r for r in rows if t_s - window_s <= float(r["time_s"]) < t_s]
-    states = Counter(r["state"] for r in w)
-    path_m = sum(math.hypot(float(b["x_m"]) - float(a["x_m"]), float(b["y_m"]) - float(a["y_m"]))
-                 for a, b in zip(w, w[1:], strict=False))
+    return Counter(r["state"] for r in w), *path_and_turning(w)
+
+
+def path_and_turning(rows: list[dict]) -> tuple[float, float]:
+    """Path length (m, without the jumps of interventions) and total turning (deg, the sum of the absolute heading
+    changes) over ``rows``."""
+    steps = (math.hypot(float(b["x_m"]) - float(a["x_m"]), float(b["y_m"]) - float(a["y_m"]))
+             for a, b in zip(rows, rows[1:], strict=False))
+    path_m = sum(d for d in steps if d < SET_DOWN_JUMP_M)
     turned = sum(abs((float(b["yaw_rad"]) - float(a["yaw_rad"]) + math.pi) % (2 * math.pi) - math.pi)
-                 for a, b in zip(w, w[1:], strict=False))
-    return states, path_m, math.degrees(turned)
+                 for a, b in zip(rows, rows[1:], strict=False))
+    return path_m, math.degrees(turned)
+
+
+def whole_run(rows: list[dict]) -> tuple[float, float, float]:
+    """Path length (m), total turning (deg) and time turning on the spot (s) over a whole mission."""
+    path_m, turned_deg = path_and_turning(rows)
+    spot_s = sum(float(b["time_s"]) - float(a["time_s"]) for a, b in zip(rows, rows[1:], strict=False)
+                 if abs(float(a["v_m_s"])) < ON_THE_SPOT_M_S and abs(float(a["w_rad_s"])) > ON_THE_SPOT_RAD_S)
+    return path_m, turned_deg, spot_s
 
 
 def kind(states: Counter, turned_deg: float, turned_limit_deg: float) -> str:
@@ -65,10 +85,12 @@ def main() -> None:
     table = Table("mission", "time (s)", "x, y (m)", "states in the window (share of steps)", "path (m)",
                   "turned (deg)", title=f"the {args.window:.0f} s before each intervention")
     kinds: Counter = Counter()
+    totals = [0.0, 0.0, 0.0]
     for d in dirs:
         report = json.loads((d / "report.json").read_text())
         nav_csv = d / "navigation.csv"
         rows = list(csv.DictReader(nav_csv.open())) if nav_csv.is_file() else []
+        totals = [a + b for a, b in zip(totals, whole_run(rows), strict=True)]
         for event in report.get("intervention_log", []):
             states, path_m, turned = window_summary(rows, event["time_s"], args.window)
             n = max(sum(states.values()), 1)
@@ -80,6 +102,8 @@ def main() -> None:
     console.print(f"{sum(kinds.values())} interventions in {len(dirs)} missions: {kinds['turning']} turning (more "
                   f"than {args.turned:.0f} deg in the window), {kinds['boxed in']} boxed in, {kinds['driving']} "
                   "driving")
+    console.print(f"whole missions: {totals[0]:.1f} m driven, {totals[1] / 360.0:.0f} full turns, {totals[2]:.0f} s "
+                  "turning on the spot")
 
 
 if __name__ == "__main__":
