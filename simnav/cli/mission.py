@@ -30,6 +30,9 @@ def mission(
     nav: Annotated[str, typer.Option(help="3d: one prism per robot section; 2d: the whole robot as one prism.")
                    ] = "3d",
     no_memory: Annotated[bool, typer.Option("--no-memory", help="Switch the short-term memory off.")] = False,
+    keep_right: Annotated[float | None, typer.Option(help="Keep this far right of the route where it goes on "
+                                                          "straight, m (default 0.4; 0: on the roadmap's line).",
+                                                     min=0, max=2)] = None,
     viz: Annotated[bool, typer.Option("--viz", help="Stream the mission to meshcat (prints the URL to open).")
                    ] = False,
     viz_url: Annotated[str | None, typer.Option(help="Join a running meshcat server at this ZMQ URL instead of "
@@ -74,7 +77,8 @@ def mission(
     settings = validate(MissionSettings, {"targets": targets if targets is not None or duration is not None else 2,
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
                                           "nav": nav, "memory": not no_memory, "sim": sim_cfg.model_dump(),
-                                          "navigator": apply_overrides({}, nav_set, "--nav-set")},
+                                          "navigator": apply_overrides({}, nav_set, "--nav-set"),
+                                          **({} if keep_right is None else {"keep_right_m": keep_right})},
                         "simnav mission")
     out_dir = out or _run_dir("mission")
     total = float(settings.targets) if settings.duration_s is None else settings.duration_s

@@ -58,7 +58,7 @@ def test_rollout_rows_do_not_depend_on_the_process():
 def test_cli_batch_writes_the_report_and_every_mission(tmp_path):
     out = tmp_path / "batch"
     args = ["batch", "--missions", "2", "--workers", "2", "--world", WORLD, "--targets", "1", "--agents", "0",
-            "--seed", "3", "--set", LIDAR_ONLY[0], "--out", str(out)]
+            "--seed", "3", "--set", LIDAR_ONLY[0], "--keep-right", "0.25", "--out", str(out)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     report = json.loads((out / "batch.json").read_text())
@@ -68,6 +68,7 @@ def test_cli_batch_writes_the_report_and_every_mission(tmp_path):
     assert (out / "rows.csv").read_text().startswith("seed,success,")
     for seed in (3, 4):
         assert (out / f"mission-{seed}" / "report.json").is_file()
+        assert "keep_right_m: 0.25" in (out / f"mission-{seed}" / "mission.yaml").read_text()
     assert "targets reached" in result.output and "per mission" in result.output
 
 

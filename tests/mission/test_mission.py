@@ -84,6 +84,7 @@ def test_an_odometry_pose_source_reports_its_drift(tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["--pose-source", "sonar"], "unknown pose source 'sonar'"),
     (["--nav", "4d"], "--nav must be 3d or 2d"),
+    (["--keep-right", "3"], "--keep-right"),
     (["--world", "atlantis"], "unknown world 'atlantis'"),
     (["--nav-set", "limit_to_sight=true"], "unknown field(s) limit_to_sight"),
     (["--nav-set", "secure_distance_m=9"], "secure_distance_m must be in [0, ref_distance_m)"),
