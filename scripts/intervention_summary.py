@@ -5,7 +5,7 @@ For every intervention in ``DIR/mission-*/report.json`` (a batch), ``DIR/seed-*/
 seconds before it (from ``navigation.csv``), the path length driven and the total turning (sum of the absolute
 heading changes) in that window: a robot turning back and forth in place turns hundreds of degrees while driving
 almost nothing, a waiting one neither. The last line counts each kind: *turning* (more than ``--turned``),
-*boxed in* (otherwise, mostly waiting, recovering or blocked), *driving* (the rest). A last line sums up the
+*boxed in* (otherwise, mostly waiting, recovering or blocked), *driving* (the rest). The line after it sums up the
 whole missions: path driven, total turning and the time spent turning on the spot (commanded speed under
 ``ON_THE_SPOT_M_S`` and yaw rate over ``ON_THE_SPOT_RAD_S``).
 
