@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -33,6 +34,8 @@ Progress = Callable[[int, int, dict[str, Any]], None]
 RAY_INSTALL_HINT = "pip install 'simnav[ray]'"
 LOCAL_RESTARTS = 2
 """Fresh pools a local batch starts after worker processes died (see :func:`_run_local`)."""
+PARENT_POLL_S = 1.0
+"""A local worker process checks this often whether the batch that started it is still there, s."""
 
 
 def run_batch(jobs: Sequence[Job], workers: int | None = None, ray_address: str | None = None,
@@ -73,7 +76,9 @@ def _run_local(jobs: Sequence[Job], workers: int, progress: Progress | None,
 
     A worker that dies (a crash in native code, killed for memory) breaks the pool and every job then in flight;
     those jobs run again in a fresh pool, up to ``LOCAL_RESTARTS`` times per batch (the rows of a job do not depend
-    on the process it runs in), so one crash does not lose the batch."""
+    on the process it runs in), so one crash does not lose the batch. A worker whose batch process is gone (killed,
+    e.g. by a scheduler's SIGTERM, which skips all clean-up) exits within ``PARENT_POLL_S`` instead of running its
+    queued jobs on and writing their folders into ``--out``."""
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
     todo = list(range(len(jobs)))
     for _ in range(LOCAL_RESTARTS + 1):
@@ -90,7 +95,8 @@ def _run_pool(jobs: Sequence[Job], todo: list[int], workers: int, progress: Prog
     """Run the jobs ``todo`` in one pool, filling ``rows``; returns the jobs left unfinished by a dead worker."""
     context = multiprocessing.get_context("spawn")
     lost: list[int] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_exit_with_parent,
+                             initargs=(os.getpid(),)) as pool:
         pending = {pool.submit(function, jobs[k]): k for k in todo}
         try:
             while pending:
@@ -106,6 +112,17 @@ def _run_pool(jobs: Sequence[Job], todo: list[int], workers: int, progress: Prog
             pool.shutdown(wait=False, cancel_futures=True)
             raise
     return sorted(lost)
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """In a worker process: a daemon thread that ends the process once its parent is no longer ``parent_pid``."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="simnav-parent-watch", daemon=True).start()
 
 
 # --------------------------------------------------------------------------------------------------------- Ray

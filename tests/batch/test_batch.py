@@ -116,3 +116,55 @@ def test_a_worker_that_dies_does_not_lose_the_batch(tmp_path):
 
 def _crash_always(job: _CrashOnce) -> dict:
     os._exit(134)
+
+
+def _children(pid: int) -> list[int]:
+    """Live worker processes (``spawn_main``) whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and _alive(int(entry.name)):
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                cmdline = (entry / "cmdline").read_bytes()
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == pid and b"spawn_main" in cmdline:
+                found.append(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_stop_when_the_batch_process_is_killed():
+    import signal
+    import subprocess
+    import time
+
+    from simnav.batch.runner import PARENT_POLL_S
+
+    code = "import time; from simnav.batch.runner import _run_local; _run_local([60.0, 60.0], 2, None, time.sleep)"
+    batch = subprocess.Popen([sys.executable, "-c", code])
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(workers) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+            workers = _children(batch.pid)
+        assert len(workers) == 2  # both started their 60 s job
+        batch.send_signal(signal.SIGTERM)  # no clean-up runs in the batch process
+        batch.wait(timeout=10)
+        deadline = time.monotonic() + 5.0 + 2 * PARENT_POLL_S
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(pid) for pid in workers)
+    finally:
+        for pid in [batch.pid, *workers]:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
