@@ -52,7 +52,7 @@ class ReferenceCrowd(Crowd):
         self._vel = (resolved - self._pos) / dt_s
         self._pos = resolved
         self._reference_yaws(dt_s)
-        self._reference_blocking(dt_s, circles)
+        self._reference_blocking(dt_s, circles, segs)
         self._reference_stuck(segs)
 
     def _reference_pairs(self, points, dynamic_segments):
@@ -92,7 +92,7 @@ class ReferenceCrowd(Crowd):
         self._yaw = wrap_angle(self._yaw + rate * dt_s)
         self._yaw_rate = rate
 
-    def _reference_blocking(self, dt_s, circles):
+    def _reference_blocking(self, dt_s, circles, walls):
         self._yield_s = np.maximum(self._yield_s - dt_s, 0.0)
         n, c = len(self._pos), np.zeros((0, 3)) if circles is None else np.asarray(circles, dtype=float)
         if n == 0 or n + len(c) < 2:
@@ -105,7 +105,13 @@ class ReferenceCrowd(Crowd):
         self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
         outranked = self._priority < np.concatenate([self._priority, np.full(len(c), np.inf)])[blocker]
         for k in np.nonzero((self._blocked_s >= 1.5) & outranked | (self._blocked_s >= 4.0))[0]:
-            self._step_back(int(k), int(blocker[k]), c)
+            by_robot = blocker[k] >= n
+            if by_robot and self._time_s - self._robot_yield_t[k] <= crowd_module.ROBOT_GIVE_UP_S:
+                self._replan_stuck(int(k), walls)  # held up by a robot again soon after stepping aside
+            else:
+                self._step_back(int(k), int(blocker[k]), c)
+            if by_robot:
+                self._robot_yield_t[k] = self._time_s
 
     def _reference_stuck(self, walls):
         closer = (np.linalg.norm(self._anchor_xy - self._target, axis=1)
