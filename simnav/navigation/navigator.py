@@ -62,6 +62,8 @@ class NavigatorConfig:
         footprint_margin_m: every section is grown by this much for the collision grids, so that chosen paths keep
             this clearance (the robot's true shape is used for the blocked-goal and recovery checks), m.
         holonomic: ``"nd"`` (default, as in §6.C.6) or ``"vff"``.
+        nd_crowded_floor_ratio: ND's :attr:`~simnav.navigation.holonomic.NDConfig.crowded_floor_ratio` (None:
+            MRPT's gap search).
         secure_distance_m: the secure-distance ramp: a candidate path's speed is the one from which the robot stops
             (``reaction_time_s`` at that speed, then braking at ``braking_m_s2``) this short of the first obstacle
             along the path; a path free for less than this gets speed 0, m. The ramp is in metres, not in
@@ -132,6 +134,7 @@ class NavigatorConfig:
     grid_resolution_m: float = 0.05
     footprint_margin_m: float = 0.05
     holonomic: str = "nd"
+    nd_crowded_floor_ratio: float | None = None
     secure_distance_m: float = 0.10
     braking_m_s2: float = 0.4
     reaction_time_s: float = 0.2
@@ -268,7 +271,8 @@ class ReactiveNavigator3D:
                                  cfg.grid_resolution_m, cache_dir) for name in cfg.ptgs]
         if not all(space.shares_grid_geometry(self._spaces[0]) for space in self._spaces):
             raise ValueError("NavigatorConfig: every PTG must share the grid geometry (same bands, resolution, ref)")
-        self._holonomic = [make_holonomic(cfg.holonomic) for _ in self._spaces]  # each keeps its own hysteresis
+        options = {"crowded_floor_ratio": cfg.nd_crowded_floor_ratio} if cfg.holonomic.lower() == "nd" else {}
+        self._holonomic = [make_holonomic(cfg.holonomic, **options) for _ in self._spaces]  # own hysteresis each
         self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])

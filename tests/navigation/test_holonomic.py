@@ -155,8 +155,24 @@ def test_nd_blocked_all_around_stops():
     rng = np.random.default_rng(3)
     out = _nd(0.03 + 0.04 * rng.random(N), dist=2.0)
     assert out.situation == NDSituation.NO_WAY_FOUND and out.speed == 0.0 and out.info.gaps == ()
+    crowded = _nd(0.03 + 0.04 * rng.random(N), dist=2.0, method=HolonomicND(crowded_floor_ratio=0.5))
+    assert crowded.situation == NDSituation.NO_WAY_FOUND and crowded.speed == 0.0
+    assert crowded.info.gaps and all(g.score == 0.0 for g in crowded.info.gaps)  # all too close to an obstacle
     assert out.direction_k == AHEAD and out.direction_alpha_rad == 0.0
     assert _nd(np.full(N, 0.1), dist=0.5).speed == 0.0
+
+
+def test_nd_crowded_floor_finds_the_free_paths_mrpts_sweep_misses():
+    # people all around: nothing free for 0.6 of the horizon but the seam's end paths; paths 80-90 free for 0.45,
+    # the target straight ahead at 0.75
+    obs = _blocked(80, 91, 0.45, base=0.1)
+    obs[[0, -1]] = 1.0
+    mrpt = _nd(obs, dist=0.75)
+    assert mrpt.situation == NDSituation.NO_WAY_FOUND and mrpt.speed == 0.0 and mrpt.info.gaps == ()
+    crowded = _nd(obs, dist=0.75, method=HolonomicND(crowded_floor_ratio=0.5))
+    assert crowded.situation == NDSituation.SMALL_GAP and 80 <= crowded.direction_k <= 90 and crowded.speed > 0.0
+    with pytest.raises(ConfigError, match="crowded_floor_ratio"):
+        HolonomicND(crowded_floor_ratio=1.5)
 
 
 def test_nd_gap_too_close_to_an_obstacle_is_refused():
@@ -177,13 +193,15 @@ def test_nd_speed_follows_the_free_distance_around_the_choice():
     assert direct.situation == NDSituation.TARGET_DIRECTLY and direct.speed == pytest.approx(0.5)
 
 
-def _reference_gaps(obs: np.ndarray, target_dist: float) -> list[tuple[int, int]]:
-    """MRPT's gap estimator written as its plain loops (threshold sweep, then the four sequential filters)."""
+def _reference_gaps(obs: np.ndarray, target_dist: float, floor_ratio: float | None = None) -> list[tuple[int, int]]:
+    """MRPT's gap estimator written as its plain loops (threshold sweep, then the four sequential filters); with
+    ``floor_ratio`` the sweep's floor is also at most that fraction of the deepest path (but the end ones)."""
     n = len(obs)
     top, bottom = max(obs[1:-1]), min(obs[1:-1])
+    floor = min(target_dist, 0.6) if floor_ratio is None else min(target_dist, 0.6, floor_ratio * top)
     cand = []
     for r in 0.95 - 0.05 * np.arange(18):
-        thr = r * top + (1 - r) * min(target_dist, 0.6)
+        thr = r * top + (1 - r) * floor
         i = 0
         while i < n:
             if obs[i] >= thr:
@@ -214,7 +232,8 @@ def _reference_gaps(obs: np.ndarray, target_dist: float) -> list[tuple[int, int]
 
 
 @pytest.mark.parametrize("n", [121, 31, 100])
-def test_nd_gap_search_matches_the_reference_loops(n):
+@pytest.mark.parametrize("floor_ratio", [None, 0.5])
+def test_nd_gap_search_matches_the_reference_loops(n, floor_ratio):
     rng = np.random.default_rng(n)
     k = np.arange(n)
     for trial in range(60):
@@ -224,8 +243,11 @@ def test_nd_gap_search_matches_the_reference_loops(n):
             obs = 0.6 + 0.6 * np.sin(k * rng.uniform(0.05, 0.4) + rng.uniform(0, 6)) + 0.1 * rng.standard_normal(n)
         obs = np.clip(obs, 0.02, 1.0)
         dist = float(rng.choice([0.2, 0.5, 2.0]))
-        out = _nd(obs, alpha=float(rng.uniform(-math.pi, math.pi)), dist=dist)
-        assert [(g.first_k, g.last_k) for g in out.info.gaps] == _reference_gaps(obs, dist)
+        if trial % 3 == 2:
+            obs = obs * rng.uniform(0.1, 0.6)  # crowded: nothing free down to MRPT's floor
+        method = HolonomicND(crowded_floor_ratio=floor_ratio)
+        out = _nd(obs, alpha=float(rng.uniform(-math.pi, math.pi)), dist=dist, method=method)
+        assert [(g.first_k, g.last_k) for g in out.info.gaps] == _reference_gaps(obs, dist, floor_ratio)
 
 
 def _reference_nd(obs: np.ndarray, target_k: int, target_dist: float, last_k: int | None, max_obs: float = 1.0,
@@ -248,7 +270,7 @@ def _reference_nd(obs: np.ndarray, target_k: int, target_dist: float, last_k: in
     px, py = td * math.cos(alpha_t), td * math.sin(alpha_t)
     w = cfg.factor_weights
     gaps = []
-    for a, b in _reference_gaps(obs, target_dist):
+    for a, b in _reference_gaps(obs, target_dist, cfg.crowded_floor_ratio):
         if b - a < wide:
             rep = math.floor((a + b) / 2 + 0.5)
         else:
@@ -285,9 +307,11 @@ def _reference_nd(obs: np.ndarray, target_k: int, target_dist: float, last_k: in
 
 _ND_OPTIONS = {"too_close_obstacle": 0.05, "wide_gap_size_percent": 0.1, "risk_evaluation_sectors_percent": 0.3,
                "factor_weights": (0.3, 1.0, 0.2, 2.0)}
+_CROWDED = {"crowded_floor_ratio": 0.5}
 
 
-@pytest.mark.parametrize(("n", "options"), [(121, {}), (31, {}), (100, {}), (121, _ND_OPTIONS)])
+@pytest.mark.parametrize(("n", "options"), [(121, {}), (31, {}), (100, {}), (121, _ND_OPTIONS), (100, _CROWDED),
+                                            (31, {**_ND_OPTIONS, **_CROWDED})])
 def test_nd_decisions_match_the_reference_loops_exactly(n, options):
     """The compiled ND and :func:`_reference_nd` agree to the bit on (direction_k, speed, situation) over 100 random
     scenes per case (400 in all), run in sequence through one instance so that the hysteresis plays."""
@@ -409,7 +433,7 @@ def test_factory_defaults_are_mrpts():
     nd, vff = make_holonomic(), make_holonomic("VFF")
     assert isinstance(nd, HolonomicND) and isinstance(vff, HolonomicVFF)
     assert isinstance(nd, HolonomicMethod) and isinstance(vff, HolonomicMethod)
-    assert nd.config == NDConfig(0.25, 0.25, 0.10, 0.4, 0.15, 0.60, (1.0, 0.5, 2.0, 0.4))
+    assert nd.config == NDConfig(0.25, 0.25, 0.10, 0.4, 0.15, 0.60, (1.0, 0.5, 2.0, 0.4), None)
     assert vff.config == VFFConfig(0.10, 20.0)
 
 

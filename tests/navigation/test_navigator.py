@@ -481,3 +481,11 @@ def test_paths_into_space_no_sensor_sees_are_not_free(cache_dir) -> None:
         chosen[name] = [nav.step(0.05 * k, np.eye(3), points) for k in range(10)][-1]
     assert chosen["blind"].state == "navigating" and abs(chosen["blind"].w_rad_s) > 0.3
     assert chosen["view"].state in ("waiting", "recovering") and chosen["view"].w_rad_s == 0.0
+
+
+def test_nd_crowded_floor_ratio_reaches_the_holonomic_method(cache_dir) -> None:
+    crowded = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, cache_dir=cache_dir,
+                                  config=replace(CONFIG, nd_crowded_floor_ratio=0.5))
+    assert all(method.config.crowded_floor_ratio == 0.5 for method in crowded._holonomic)
+    plain = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, cache_dir=cache_dir, config=CONFIG)
+    assert all(method.config.crowded_floor_ratio is None for method in plain._holonomic)
