@@ -369,11 +369,10 @@ class NDConfig:
             target, Euclidean nearness of the path to the target, hysteresis.
         crowded_floor_ratio: the gap sweep goes down to ``min(d_target, 0.6, this · deepest)``, ``deepest`` the
             largest TP-obstacle but the end paths'; None: MRPT's ``min(d_target, 0.6)``. With MRPT's floor, when
-            no path but the end ones is free for that far (0.6 is 2.4 m at a 4 m reference distance: people all
-            around)
-            every threshold lies above the free paths, and ND finds no gap (the robot stops and waits) or only
-            the one across the seam at alpha = +-pi (which turns the robot in place; as it turns, the seam turns
-            with it, and it spins). On the office missions (seeds 1-32) 0.5 cut the time spent turning on the spot
+            no path but the end ones is free that far (0.6 is 2.4 m at a 4 m reference distance: people all
+            around), every threshold lies above the free paths, and ND finds no gap (the robot stops and waits) or
+            only the one across the seam at alpha = +-pi (which turns the robot in place; as it turns, the seam
+            turns with it, and it spins). On the office missions (seeds 1-32) 0.5 cut the time spent turning on the spot
             by 19 % and the missions' duration by 8 %, with as many interventions; in the contour-door experiment
             with the bar (2 cm grids, short-term memory) the robot pressed against the bar 7 times in 20 instead
             of 2, so MRPT's floor stays the default.
