@@ -148,7 +148,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=1, help="rounds of the single-env configurations")
     parser.add_argument("--core", type=int, default=(os.cpu_count() or 1) - 1,
                         help="core the single envs run on (-1: not pinned)")
-    parser.add_argument("--missions", type=int, default=4, help="missions per batch run")
+    parser.add_argument("--missions", type=int, default=4, help="missions per batch run (0: no batch runs)")
     parser.add_argument("--mission-seconds", type=float, default=20.0, help="simulated seconds per mission")
     args = parser.parse_args()
     console = Console()
@@ -174,6 +174,8 @@ def main() -> None:
         table.add_row(f"{label} x 2, OfficeNav-v0 default, lidar", f"{rate:.0f}", "")
     console.print(table)
 
+    if args.missions < 1:
+        return finish(console)
     batch = Table("workers", "simulated s / wall s", "wall time (s)", "cores used",
                   title=f"batch missions: {args.missions} office missions of {args.mission_seconds:g} s simulated "
                         f"(default mission: 10 people, lidar + depth camera)")
@@ -185,6 +187,10 @@ def main() -> None:
     ratio = rates[2] / rates[1]
     console.print(f"1 -> 2 workers: {ratio:.2f}x ({verdict(ratio, TARGET_SCALING)}); the workers got "
                   f"{cores[1]:.2f} and {cores[2]:.2f} cores (CPU time / wall time)")
+    finish(console)
+
+
+def finish(console: Console) -> None:
     load = os.getloadavg()
     console.print(f"load average after the runs: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}")
 
