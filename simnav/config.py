@@ -37,11 +37,11 @@ def format_validation_error(err: ValidationError, source: str) -> str:
     """One readable message per failing field: ``source: field.path: message (got value)``."""
     lines = []
     for item in err.errors():
-        loc = ".".join(str(p) for p in item["loc"]) or "<root>"
-        msg = item["msg"]
+        loc = ".".join(str(p) for p in item["loc"])
+        msg = item["msg"].removeprefix("Value error, ")  # raised by a validator: its message says it all
         got = item.get("input")
-        got_txt = "" if isinstance(got, dict | list) or got is None else f" (got {got!r})"
-        lines.append(f"{source}: field '{loc}': {msg}{got_txt}")
+        got_txt = "" if isinstance(got, dict | list) or got is None or repr(got) in msg else f" (got {got!r})"
+        lines.append(f"{source}: field '{loc}': {msg}{got_txt}" if loc else f"{source}: {msg}")
     return "\n".join(lines)
 
 

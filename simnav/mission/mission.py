@@ -21,10 +21,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args, get_type_hints
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 import simnav
 from simnav.config import FrozenModel, dump_yaml
@@ -84,6 +84,9 @@ STRAIGHT_NODE_RAD = math.radians(30.0)
 """Only nodes where the route turns by less than this are moved to the right of it, rad."""
 
 
+NavigatorValue = bool | int | float | str | None  # a scalar navigator option of ``--nav-set``
+
+
 class MissionSettings(FrozenModel):
     """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator."""
 
@@ -96,8 +99,22 @@ class MissionSettings(FrozenModel):
     max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
     memory: bool = True
     keep_right_m: Annotated[float, Field(ge=0, le=2)] = 0.4
-    navigator: dict[str, bool | int | float | dict[str, bool | int | float]] = {}
+    navigator: dict[str, NavigatorValue | dict[str, NavigatorValue]] = {}
     sim: SimConfig = SimConfig()
+
+    @field_validator("navigator", mode="before")
+    @classmethod
+    def _navigator_values(cls, value: object) -> object:
+        """One error naming the option whose value is not a scalar (instead of one per type it could have had)."""
+        if not isinstance(value, dict):
+            return value  # pydantic's own error: expected a mapping
+        for key, item in value.items():
+            for sub, scalar in item.items() if isinstance(item, dict) else [(None, item)]:
+                if not (scalar is None or isinstance(scalar, bool | int | float | str)):
+                    name = key if sub is None else f"{key}.{sub}"
+                    raise ValueError(f"{name}: expected one value (true/false, a number, a word or null), "
+                                     f"got {scalar!r}")
+        return value
 
     @model_validator(mode="after")
     def _budget(self) -> MissionSettings:
@@ -121,6 +138,8 @@ def navigator_config(settings: MissionSettings) -> NavigatorConfig:
     nested = [k for k, v in options.items() if isinstance(v, dict)]
     if nested:
         raise ValueError(f"navigator: {', '.join(nested)} takes a value, not fields")
+    _check_types("navigator", options, NavigatorConfig)
+    _check_types("navigator: memory_config", memory, MemoryConfig)
     try:
         return NavigatorConfig(**{"memory": settings.memory, "stuck_timeout_s": settings.stuck_timeout_s,
                                   **options, "memory_config": MemoryConfig(**memory)})
@@ -134,6 +153,28 @@ def _check_fields(what: str, options: dict, config_type: type, skip: Sequence[st
     unknown = sorted(set(options) - known)
     if unknown:
         raise ValueError(f"{what}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+
+
+_KINDS = {bool: "true or false", int: "a whole number", float: "a number", str: "a word", type(None): "null"}
+
+
+def _check_types(what: str, options: dict, config_type: type) -> None:
+    """One error naming the first option of ``options`` whose value does not have the type of its field in the
+    dataclass ``config_type`` (a whole number is a number too; true/false is neither)."""
+    hints = get_type_hints(config_type)
+    for key, value in options.items():
+        allowed = get_args(hints[key]) or (hints[key],)
+        if not any(_is_kind(value, kind) for kind in allowed):
+            expected = " or ".join(_KINDS.get(kind, getattr(kind, "__name__", str(kind))) for kind in allowed)
+            raise ValueError(f"{what}: {key} takes {expected}, got {value!r}")
+
+
+def _is_kind(value: object, kind: type) -> bool:
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, kind)
 
 
 @dataclass

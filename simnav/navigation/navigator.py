@@ -43,7 +43,7 @@ from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
 from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
 from simnav.navigation.collision_grid import points_in_polygon
-from simnav.navigation.holonomic import HolonomicInput, NDConfig, index_to_alpha
+from simnav.navigation.holonomic import METHODS, HolonomicInput, NDConfig, index_to_alpha
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 from simnav.navigation.sensing import ViewSector
 
@@ -195,6 +195,10 @@ class NavigatorConfig:
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,
              "turn_in_place_retry_s and turn_in_place_retry_m must be >= 0"),
+            (self.holonomic.lower() in METHODS,
+             f"holonomic must be one of {', '.join(METHODS)}, got {self.holonomic!r}"),
+            (self.nd_crowded_floor_ratio is None or 0 < self.nd_crowded_floor_ratio <= 1,
+             f"nd_crowded_floor_ratio must be None or in (0, 1], got {self.nd_crowded_floor_ratio}"),
         ]
         for ok, message in checks:
             if not ok:

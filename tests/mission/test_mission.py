@@ -91,11 +91,18 @@ def test_an_odometry_pose_source_reports_its_drift(tmp_path):
     (["--nav-set", "memory_config.half_life_s=3"], "memory_config: unknown field(s) half_life_s"),
     (["--nav-set", "memory_config.decay_s=0"], "decay_s must be > 0"),
     (["--nav-set", "memory_config=3"], "memory_config takes fields"),
+    (["--nav-set", "num_paths=121.5"], "num_paths takes a whole number, got 121.5"),
+    (["--nav-set", "limit_to_view=1"], "limit_to_view takes true or false, got 1"),
+    (["--nav-set", "nd_crowded_floor_ratio=abc"], "nd_crowded_floor_ratio takes a number or null, got 'abc'"),
+    (["--nav-set", "nd_crowded_floor_ratio=-1"], "nd_crowded_floor_ratio must be None or in (0, 1], got -1"),
+    (["--nav-set", "holonomic=bogus"], "holonomic must be one of nd, vff, got 'bogus'"),
+    (["--nav-set", "memory_config.decay_s=[1, 2]"], "memory_config.decay_s: expected one value"),
 ])
 def test_bad_options_are_one_clear_error(args, message):
     result = simnav("mission", "--targets", "1", *args)
     assert result.returncode == 2
     assert message in result.stderr
+    assert result.stderr.count("simnav mission:") <= 1  # one error, not one per type the value could have had
     assert "Traceback" not in result.stderr + result.stdout
 
 
@@ -300,3 +307,24 @@ def test_navigator_options_reach_the_missions_navigator():
     assert (config.limit_to_view, config.secure_distance_m, config.memory) == (True, 0.2, False)
     assert config.memory_config == MemoryConfig(decay_s=10.0)
     assert navigator_config(MissionSettings(targets=1)) == NavigatorConfig()
+
+
+def test_navigator_options_take_words_numbers_and_null():
+    settings = MissionSettings(targets=1, navigator={"holonomic": "vff", "num_paths": 61, "ref_distance_m": 4,
+                                                     "nd_crowded_floor_ratio": None})
+    config = navigator_config(settings)
+    assert (config.holonomic, config.num_paths, config.ref_distance_m, config.nd_crowded_floor_ratio) == \
+        ("vff", 61, 4, None)
+
+
+def test_settings_errors_name_the_field_once_without_pydantic_prefixes():
+    from simnav.config import validate
+    from simnav.errors import ConfigError
+
+    with pytest.raises(ConfigError) as root:
+        validate(MissionSettings, {"targets": None}, "mission.yaml")
+    assert str(root.value) == "mission.yaml: give targets or duration_s"  # a whole-model check names no field
+    with pytest.raises(ConfigError) as bad:
+        validate(MissionSettings, {"targets": 1, "navigator": {"num_paths": [1]}}, "mission.yaml")
+    assert str(bad.value) == ("mission.yaml: field 'navigator': num_paths: expected one value (true/false, a number, "
+                              "a word or null), got [1]")
