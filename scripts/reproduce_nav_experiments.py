@@ -20,17 +20,19 @@
 3. ``--long KM``: office and flat missions with the normal mission runner (random roadmap targets, 10 people,
    ground-truth pose, STM on), KM km in all, split as in the thesis (13.5 : 5.01 km); the flat at 0.4 m/s as in
    §6.C.7. Each world's share runs as continuous missions of at most ``--long-chunk-km`` (0.5 km) on consecutive
-   seeds, in parallel over ``--jobs``; with ``--out`` a rerun reuses every mission whose ``report.json`` is there
-   with the same world, people, seed and distance, run by the same package code (a hash of its sources in
-   ``code.txt``). Printed beside Tables 6.1 and 6.2.
+   seeds, in parallel over ``--jobs``. The navigator has the product defaults; ``--long-nav-set KEY=VALUE`` changes
+   an option for both worlds, ``--flat-nav-set KEY=VALUE`` for the flat only (e.g. its 0.8 m doorways with
+   ``grid_resolution_m=0.02`` and ``footprint_margin_m=0.02``). With ``--out`` a rerun reuses every mission whose
+   ``report.json`` is there with the same world, people, seed and distance, run by the same package code and
+   navigator options (a hash of the sources and the options in ``code.txt``). Printed beside Tables 6.1 and 6.2.
 
 The scenarios drive the mission runner (:class:`simnav.mission.mission._MissionRunner`) one route at a time: a
 subclass gives it the start pose (as the world's spawn), the route and the end conditions; the control step,
 sensing, pose source (ground truth) and contact bookkeeping are the runner's own.
 
     python scripts/reproduce_nav_experiments.py [--runs 20] [--seed 0] [--timeout 90] [--variants ...]
-        [--desk-visits 14] [--only door|desks|none] [--long KM [--long-chunk-km 0.5]] [--jobs N] [--out DIR]
-        [--verbose]
+        [--desk-visits 14] [--only door|desks|none] [--long KM [--long-chunk-km 0.5] [--long-nav-set KEY=VALUE]
+        [--flat-nav-set KEY=VALUE]] [--jobs N] [--out DIR] [--verbose]
 
 With ``--out DIR``: ``DIR/nav_experiments.md`` (every table, per-run and per-visit rows included),
 ``DIR/contour_door*_<nav>_<config>.png`` (every run's path), ``DIR/desks_<nav>.png`` and ``DIR/long_<world>/seed-<N>/``
@@ -64,6 +66,8 @@ from simnav.mission.mission import (
     mission_robot,
 )
 from simnav.assets import data_dir
+from simnav.config import apply_overrides, validate
+from simnav.errors import ConfigError
 from simnav.navigation.memory import MemoryConfig
 from simnav.robot import load_robot
 from simnav.robot.spec import RobotSpec
@@ -458,18 +462,22 @@ class LongJob:
     people: int
     seed: int
     out_dir: Path | None = None
+    navigator: tuple[tuple[str, object], ...] = ()  # navigator options (``MissionSettings.navigator``), sorted
 
 
-def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out: Path | None) -> list[LongJob]:
+def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out: Path | None,
+              navigator: dict[str, dict] | None = None) -> list[LongJob]:
     """KM km split between the office and the flat as Tables 6.1 : 6.2, each share in continuous missions of at most
-    ``chunk_km`` km on consecutive seeds; the office's first."""
+    ``chunk_km`` km on consecutive seeds; the office's first. ``navigator`` maps a world to its navigator options."""
     total = sum(t["km"] for t in THESIS_LONG.values())
     jobs = []
     for name in ("office", "flat"):
         share = km * THESIS_LONG[name]["km"] / total
         n = max(1, math.ceil(share / chunk_km - 1e-9))
+        options = tuple(sorted((navigator or {}).get(name, {}).items()))
         jobs += [LongJob(name, share / n, people[name], seed + k,
-                         out / f"long_{name}" / f"seed-{seed + k}" if out is not None else None) for k in range(n)]
+                         out / f"long_{name}" / f"seed-{seed + k}" if out is not None else None, options)
+                 for k in range(n)]
     return jobs
 
 
@@ -481,12 +489,13 @@ def run_long(job: LongJob) -> dict:
         return done
     if job.out_dir is not None:
         job.out_dir.mkdir(parents=True, exist_ok=True)
-        (job.out_dir / "code.txt").write_text(code_fingerprint() + "\n")
+        (job.out_dir / "code.txt").write_text(_job_stamp(job))
     world = load_world(job.world)
     robot = load_robot("giraff")
     if job.world == "flat":
         robot = with_max_speed(robot, FLAT_SPEED_M_S)
-    settings = MissionSettings(targets=100000, seed=job.seed, sim=SimConfig(pedestrians=job.people))
+    settings = MissionSettings(targets=100000, seed=job.seed, sim=SimConfig(pedestrians=job.people),
+                               navigator=dict(job.navigator))
     runner = DistanceRunner(world, mission_robot(robot, settings), settings, job.out_dir, distance_m=job.km * 1000.0)
     try:
         report = runner.run(None)
@@ -501,11 +510,16 @@ def _finished_long(job: LongJob) -> dict | None:
     if job.out_dir is None or not (job.out_dir / "report.json").is_file():
         return None
     code = job.out_dir / "code.txt"
-    if not code.is_file() or code.read_text().strip() != code_fingerprint():
+    if not code.is_file() or code.read_text() != _job_stamp(job):
         return None
     data = json.loads((job.out_dir / "report.json").read_text())
     same = (data.get("world"), data.get("people"), data.get("seed")) == (job.world, job.people, job.seed)
     return data if same and data.get("distance_m", 0.0) >= job.km * 1000.0 else None
+
+
+def _job_stamp(job: LongJob) -> str:
+    """What a long mission's folder records of the code and the navigator options that ran it (``code.txt``)."""
+    return code_fingerprint() + "\n" + (json.dumps(dict(job.navigator), sort_keys=True) + "\n" if job.navigator else "")
 
 
 def code_fingerprint() -> str:
@@ -750,6 +764,11 @@ def main() -> None:
     parser.add_argument("--long-chunk-km", type=float, default=0.5, metavar="KM",
                         help="longest continuous long mission; each world's share is split into missions of at most "
                              "this distance on consecutive seeds, run in parallel with --jobs")
+    parser.add_argument("--long-nav-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a navigator option for the long missions (as `simnav mission --nav-set`); repeatable")
+    parser.add_argument("--flat-nav-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a navigator option for the flat's long missions only, after --long-nav-set, e.g. "
+                             "grid_resolution_m=0.02; repeatable")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", type=Path, default=None, help="folder for markdown tables and plots")
     parser.add_argument("--verbose", action="store_true", help="also print the per-run and per-visit tables")
@@ -817,9 +836,10 @@ def main() -> None:
     if args.long is not None:
         people = [int(n) for n in args.long_people.split(",")]
         people = dict(zip(("office", "flat"), people if len(people) == 2 else people * 2, strict=True))
+        navigator = long_navigator(parser, args.long_nav_set, args.flat_nav_set)
         t0 = time.perf_counter()
-        reports = run_jobs(run_long, long_jobs(args.long, people, args.seed, args.long_chunk_km, out), args.jobs,
-                           "long missions")
+        reports = run_jobs(run_long, long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator),
+                           args.jobs, "long missions")
         long = [long_table(reports), long_runs_table(reports)]
         for t in long if args.verbose else long[:1]:
             console.print(t)
@@ -831,6 +851,19 @@ def main() -> None:
         text = "# simnav: navigation experiments of thesis §6.C.7\n\n" + "\n".join(md_table(t) for t in tables)
         (out / "nav_experiments.md").write_text(text)
         console.print(f"wrote {out / 'nav_experiments.md'}")
+
+
+def long_navigator(parser: argparse.ArgumentParser, common: list[str], flat: list[str]) -> dict[str, dict]:
+    """The long missions' navigator options per world from ``--long-nav-set`` and ``--flat-nav-set``; a bad one ends
+    the script with one error naming it."""
+    try:
+        options = {"office": apply_overrides({}, common, "--long-nav-set")}
+        options["flat"] = apply_overrides(options["office"], flat, "--flat-nav-set")
+        for name, navigator in options.items():
+            validate(MissionSettings, {"targets": 1, "navigator": navigator}, f"long missions in the {name}")
+    except ConfigError as err:
+        parser.error(str(err))
+    return options
 
 
 if __name__ == "__main__":
