@@ -195,7 +195,7 @@ class NavigatorConfig:
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,
              "turn_in_place_retry_s and turn_in_place_retry_m must be >= 0"),
-            (self.holonomic.lower() in METHODS,
+            (isinstance(self.holonomic, str) and self.holonomic.lower() in METHODS,
              f"holonomic must be one of {', '.join(METHODS)}, got {self.holonomic!r}"),
             (self.nd_crowded_floor_ratio is None or 0 < self.nd_crowded_floor_ratio <= 1,
              f"nd_crowded_floor_ratio must be None or in (0, 1], got {self.nd_crowded_floor_ratio}"),
