@@ -773,6 +773,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="folder for markdown tables and plots")
     parser.add_argument("--verbose", action="store_true", help="also print the per-run and per-visit tables")
     args = parser.parse_args()
+    navigator = long_navigator(parser, args.long_nav_set, args.flat_nav_set)  # a bad option fails before any run
     started = time.perf_counter()
     tables: list[Table] = []
     out = args.out
@@ -836,7 +837,6 @@ def main() -> None:
     if args.long is not None:
         people = [int(n) for n in args.long_people.split(",")]
         people = dict(zip(("office", "flat"), people if len(people) == 2 else people * 2, strict=True))
-        navigator = long_navigator(parser, args.long_nav_set, args.flat_nav_set)
         t0 = time.perf_counter()
         reports = run_jobs(run_long, long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator),
                            args.jobs, "long missions")
