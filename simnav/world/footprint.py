@@ -81,6 +81,20 @@ def door_swing_polygon(door: Door, arc_points: int = 16) -> Polygon:
     return Polygon([tuple(door.hinge), *arc])
 
 
+def open_leaf_polygon(door: Door) -> Polygon:
+    """The door's leaf standing fully open (at ``closed_yaw_deg + swing_deg``): a rectangle of its width from the
+    hinge and of its thickness."""
+    yaw = math.radians(door.closed_yaw_deg + door.swing_deg)
+    tip = (door.hinge[0] + door.width_m * math.cos(yaw), door.hinge[1] + door.width_m * math.sin(yaw))
+    return LineString([tuple(door.hinge), tip]).buffer(0.5 * door.thickness_m, cap_style="flat")
+
+
+def open_leaf_distance_m(spec: WorldSpec, xy: np.ndarray) -> np.ndarray:
+    """(N,) distance (metres) from each (N, 2) world point to the nearest door leaf standing fully open (+inf in a
+    world without doors)."""
+    return distance_to(shapely.unary_union([open_leaf_polygon(d) for d in spec.doors]), xy)
+
+
 def door_swing_distance_m(spec: WorldSpec, xy: np.ndarray) -> np.ndarray:
     """(N,) distance (metres) from each (N, 2) world point to the nearest area a door leaf sweeps (0 inside;
     +inf in a world without doors)."""

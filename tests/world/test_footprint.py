@@ -154,3 +154,15 @@ def test_door_swing_distance_is_zero_in_the_swept_sector_and_grows_outside() -> 
     assert d[2] == pytest.approx(1.0, abs=1e-6)          # past the leaf's tip
     assert d[3] == pytest.approx(0.3)                    # beside the open leaf
     assert np.isinf(fp.door_swing_distance_m(_world(), np.zeros((1, 2)))).all()
+
+
+def test_open_leaf_distance_is_to_the_leaf_standing_at_its_full_swing() -> None:
+    door = Door(hinge=(0.0, 0.0), width_m=1.0, closed_yaw_deg=0.0, swing_deg=90.0, thickness_m=0.04)
+    world = _world(doors=[door])
+    d = fp.open_leaf_distance_m(world, np.array([[0.3, 0.5], [0.0, 1.3], [0.5, 0.0], [-0.01, 0.5]]))
+    assert d[0] == pytest.approx(0.28)                   # beside the open leaf (x = 0, 2 cm thick each side)
+    assert d[1] == pytest.approx(0.3)                    # past its tip
+    assert d[2] == pytest.approx(0.48)                   # across the doorway: the leaf's side at the hinge
+    assert d[3] == 0.0                                   # in the leaf
+    assert fp.open_leaf_polygon(door).bounds == pytest.approx((-0.02, 0.0, 0.02, 1.0))
+    assert np.isinf(fp.open_leaf_distance_m(_world(), np.zeros((1, 2)))).all()
