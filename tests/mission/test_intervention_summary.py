@@ -14,9 +14,10 @@ from simnav.mission.mission import NAV_LOG_COLUMNS
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "intervention_summary.py"
 
 
-def _write_mission(folder: Path) -> None:
+def _write_mission(folder: Path, world: str | None = None, xy_m: tuple[float, float] | None = None) -> None:
     """40 s at 10 Hz: 10 s driving along +x at 0.5 m/s, 20 s turning on the spot at 0.5 rad/s, 10 s waiting; then an
-    intervention sets the robot down 5 m away."""
+    intervention sets the robot down 5 m away. ``world``: the report names it; ``xy_m``: where the intervention is
+    logged (default where the robot stands)."""
     rows = []
     x, yaw = 0.0, 0.0
     for k in range(401):
@@ -35,8 +36,10 @@ def _write_mission(folder: Path) -> None:
         writer = csv.writer(f)
         writer.writerow(NAV_LOG_COLUMNS)
         writer.writerows(rows)
-    log = [{"time_s": 40.05, "target": 0, "x_m": x, "y_m": 0.0, "moved_to_node": 3}]
-    (folder / "report.json").write_text(json.dumps({"intervention_log": log}))
+    at = xy_m or (x, 0.0)
+    log = [{"time_s": 40.05, "target": 0, "x_m": at[0], "y_m": at[1], "moved_to_node": 3}]
+    report = {"intervention_log": log} | ({"world": world} if world else {})
+    (folder / "report.json").write_text(json.dumps(report))
 
 
 def test_the_summary_counts_turning_in_the_window_and_over_whole_missions(tmp_path) -> None:
@@ -48,6 +51,17 @@ def test_the_summary_counts_turning_in_the_window_and_over_whole_missions(tmp_pa
     assert "│ 0.00     │ 570 " in out
     # whole mission: 5 m driven (the 5 m jump of the intervention is not), 1.6 turns, 20 s on the spot
     assert "whole missions: 5.0 m driven, 2 full turns, 20 s turning on the spot" in out
+    assert "0 within 0.6 m of a door leaf standing open" in out  # no world named: no distance
+
+
+def test_interventions_beside_an_open_door_leaf_are_counted(tmp_path) -> None:
+    # the office's south-east room: its leaf stands open along x = 16.43 m from y = -1.1 to -2.1 m (4 cm thick)
+    _write_mission(tmp_path / "batch" / "mission-1", world="office", xy_m=(16.0, -1.5))
+    _write_mission(tmp_path / "batch" / "mission-2", world="office", xy_m=(10.0, 0.0))  # mid-corridor
+    out = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "batch")], capture_output=True, text=True,
+                         check=True, env={"COLUMNS": "200", "PATH": ""}).stdout
+    assert "│ 0.41 " in out
+    assert "1 within 0.6 m of a door leaf standing open" in out
 
 
 def test_a_folder_without_reports_is_one_clear_error(tmp_path) -> None:
