@@ -64,12 +64,13 @@ def table_polygons(table: Table, z_min_m: float, z_max_m: float) -> list[Polygon
     return []
 
 
-def door_leaf_polygon(door: Door) -> Polygon:
-    """The closed leaf: ``width_m`` from the hinge along ``closed_yaw_deg``, ``thickness_m`` across."""
-    yaw = math.radians(door.closed_yaw_deg)
-    half = 0.5 * door.width_m
+def door_leaf_polygon(door: Door, opening: float = 0.0) -> Polygon:
+    """The leaf at ``opening`` (0: closed, along ``closed_yaw_deg``; 1: fully open, ``swing_deg`` further):
+    ``width_m`` from the hinge, ``thickness_m`` across."""
+    yaw_deg = door.closed_yaw_deg + opening * door.swing_deg
+    yaw, half = math.radians(yaw_deg), 0.5 * door.width_m
     mid = (door.hinge[0] + half * math.cos(yaw), door.hinge[1] + half * math.sin(yaw))
-    return rectangle(mid, (door.width_m, door.thickness_m), door.closed_yaw_deg)
+    return rectangle(mid, (door.width_m, door.thickness_m), yaw_deg)
 
 
 def door_swing_polygon(door: Door, arc_points: int = 16) -> Polygon:
@@ -81,18 +82,10 @@ def door_swing_polygon(door: Door, arc_points: int = 16) -> Polygon:
     return Polygon([tuple(door.hinge), *arc])
 
 
-def open_leaf_polygon(door: Door) -> Polygon:
-    """The door's leaf standing fully open (at ``closed_yaw_deg + swing_deg``): a rectangle of its width from the
-    hinge and of its thickness."""
-    yaw = math.radians(door.closed_yaw_deg + door.swing_deg)
-    tip = (door.hinge[0] + door.width_m * math.cos(yaw), door.hinge[1] + door.width_m * math.sin(yaw))
-    return LineString([tuple(door.hinge), tip]).buffer(0.5 * door.thickness_m, cap_style="flat")
-
-
 def open_leaf_distance_m(spec: WorldSpec, xy: np.ndarray) -> np.ndarray:
     """(N,) distance (metres) from each (N, 2) world point to the nearest door leaf standing fully open (+inf in a
     world without doors)."""
-    return distance_to(shapely.unary_union([open_leaf_polygon(d) for d in spec.doors]), xy)
+    return distance_to(shapely.unary_union([door_leaf_polygon(d, opening=1.0) for d in spec.doors]), xy)
 
 
 def door_swing_distance_m(spec: WorldSpec, xy: np.ndarray) -> np.ndarray:

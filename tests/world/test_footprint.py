@@ -164,5 +164,5 @@ def test_open_leaf_distance_is_to_the_leaf_standing_at_its_full_swing() -> None:
     assert d[1] == pytest.approx(0.3)                    # past its tip
     assert d[2] == pytest.approx(0.48)                   # across the doorway: the leaf's side at the hinge
     assert d[3] == 0.0                                   # in the leaf
-    assert fp.open_leaf_polygon(door).bounds == pytest.approx((-0.02, 0.0, 0.02, 1.0))
+    assert fp.door_leaf_polygon(door, opening=1.0).bounds == pytest.approx((-0.02, 0.0, 0.02, 1.0))
     assert np.isinf(fp.open_leaf_distance_m(_world(), np.zeros((1, 2)))).all()
