@@ -39,8 +39,10 @@ labelled moving, over all frames (compare seed 001's Table I).
 
     python scripts/bench_rgbd_odometry.py [--seconds 10] [--sequences robot-static robot-people3 ...]
                                           [--methods difodo-qvga vosf open3d-rgbd ...] [--seed 0] [--candidates 4]
-                                          [--per-frame DIR]
+                                          [--per-frame DIR] [--vosf-set KEY=VALUE ...]
 
+``--vosf-set`` runs Joint-VO-SF with fields of its config changed, e.g. the public code's segmentation thresholds
+``--vosf-set residual_floor=0.007 residual_ceiling=0.015``.
 ``--per-frame DIR`` writes the error of every frame-to-frame increment per sequence and method
 (``DIR/<sequence>_<method>.csv``: true and estimated speed, translational and rotational error, degeneracy flag),
 to find the frames where a method goes wrong.
@@ -73,6 +75,8 @@ from rich.progress import Progress  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 import simnav  # noqa: E402  (first: it chooses MUJOCO_GL before mujoco loads)
+from simnav.config import apply_overrides  # noqa: E402
+from simnav.errors import ConfigError  # noqa: E402
 from simnav.geometry import se3  # noqa: E402
 from simnav.geometry.camera import R_BODY_OPTICAL, R_MUJOCOCAM_OPTICAL  # noqa: E402
 from simnav.io import RGBDDataset, RGBDDatasetWriter, Trajectory, TumWriter  # noqa: E402
@@ -584,7 +588,15 @@ def main() -> None:
     parser.add_argument("--candidates", type=int, default=4, help="seeds tried per sequence with people")
     parser.add_argument("--per-frame", type=Path, metavar="DIR",
                         help="write DIR/<sequence>_<method>.csv: the error of every frame-to-frame increment")
+    parser.add_argument("--vosf-set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="Joint-VO-SF config fields, e.g. residual_floor=0.007 residual_ceiling=0.015")
     args = parser.parse_args()
+    try:
+        vosf_config = apply_overrides({}, args.vosf_set, "--vosf-set")
+        make_frame_odometry("vosf", **vosf_config)
+    except ConfigError as err:
+        parser.error(str(err))
+    METHODS["vosf"] = lambda: _Ours("vosf", **vosf_config)
     console = Console()
     if not console.is_terminal:
         console = Console(width=150)
@@ -639,7 +651,7 @@ def main() -> None:
                 bar.advance(task)
             odo_table.add_section()
     console.print(f"[dim]{args.seconds:g} s per sequence, seed {args.seed}, {args.candidates} candidate seeds with "
-                  f"people; cache {CACHE}/[/]")
+                  f"people; cache {CACHE}/[/]" + (f"\n[dim]Joint-VO-SF with {vosf_config}[/]" if vosf_config else ""))
     console.print(seq_table)
     console.print(odo_table)
     if flow_table.row_count:

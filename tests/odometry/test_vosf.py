@@ -231,8 +231,8 @@ def test_static_scene_recovers_the_camera_motion_and_the_mount():
     np.testing.assert_allclose(e1.twist_camera, se3.log(e1.T_odom_camera) / DT_S, atol=1e-9)
     assert not e1.degenerate and e1.valid_points > 0.9 * H * W
     assert np.all(np.linalg.eigvalsh(e1.covariance) >= -1e-18) and np.all(np.isfinite(e1.covariance))
-    # Nothing moves: every cluster is background and the scene flow is ~0.
-    assert np.all(e1.extra["background_probability"] > 0.9)
+    # Nothing moves: every cluster is static (b below static_below) and the scene flow is ~0.
+    assert np.all(e1.extra["background_probability"] > 1.0 - vo.config.static_below)  # measured: >= 0.83
     assert not e1.extra["moving_mask"].any()
     flow = e1.extra["scene_flow_m"]
     assert flow.shape == (3, H, W) and flow.dtype == np.float32
@@ -273,8 +273,27 @@ def test_a_person_walking_2_5_m_ahead_is_segmented_moving():
     for e, f in zip(est[1:], seq.frames[1:]):
         person_px = f.body_id == 0
         assert 2.4 < np.median(f.depth_m[person_px]) < 2.55 and person_px.mean() > 0.15
-        assert e.extra["moving_mask"][person_px].mean() > 0.9
-        assert e.extra["moving_mask"][~person_px].mean() < 0.06
+        assert e.extra["moving_mask"][person_px].mean() > 0.9  # measured: 100 %
+        # clusters shared by the person and the wall behind (measured: 7-8 %; 3-4 % with the public code's t_B, t_M)
+        assert e.extra["moving_mask"][~person_px].mean() < 0.1
+
+
+def test_a_slow_walker_2_5_m_ahead_is_segmented_moving_and_kept_out_of_the_odometry():
+    # 0.6 m/s across the view of the moving camera: residuals a few times a static cluster's, below the public
+    # code's t_B / t_M (0.007 / 0.015), which leave the walker static and let it pull the odometry (module notes).
+    seq = walking_sequence(6, [(person(3.9, 2.2), (0.0, 0.02, 0.0), 0.0)], noise=5e-4)
+    truth = [se3.inverse(a) @ b for a, b in zip(seq.poses[:-1], seq.poses[1:])]
+    for config, recall in (({}, 0.75), ({"residual_floor": 0.007, "residual_ceiling": 0.015}, None)):
+        vo = JointVOSF(**config)
+        est = [vo.process(f) for f in seq.frames]
+        moving = [e.extra["moving_mask"][f.body_id == 0].mean() for e, f in zip(est[1:], seq.frames[1:])]
+        worst = max(motion_error(T, Tt)[0] for T, Tt in zip(increments(est)[1:], truth[1:]))
+        if recall is None:
+            assert max(moving) < 0.1 and worst > 0.01  # measured: 0 %, 15 mm
+            continue
+        assert min(moving) > recall and worst < 3e-3  # measured: 80-96 %, 1.5 mm
+        for e, f in zip(est[1:], seq.frames[1:]):
+            assert e.extra["moving_mask"][f.body_id != 0].mean() < 0.06  # measured: 1-4 %
 
 
 def test_scene_flow_of_two_independently_moving_boxes():
@@ -417,8 +436,8 @@ def test_segmentation_energy_has_the_closed_form_minimiser():
 
     best = minimize(energy, np.full(n, 0.5), method="L-BFGS-B", bounds=[(0, 1)] * n, options={"ftol": 1e-14})
     np.testing.assert_allclose(seg.b, best.x, atol=2e-4)
-    # A cluster with clearly high residuals is moving, one far away is pulled to the background.
-    seg = segment_background(np.array([0.001, 0.002, 0.2, 0.2]), np.array([2.0, 2.0, 2.0, 8.0]),
+    # A cluster with clearly high residuals (12x delta_H) is moving, one as high far away is pulled to the background.
+    seg = segment_background(np.array([0.001, 0.002, 0.05, 0.05]), np.array([2.0, 2.0, 2.0, 8.0]),
                              np.zeros((4, 4), bool), None, 0.0, 3.0, cfg)
     assert seg.b[2] > 2 / 3 and seg.b[3] < 1 / 3 and np.all(seg.b[:2] < 1e-6)
 
@@ -430,8 +449,9 @@ def test_compiled_update_matches_the_se3_exponential():
         np.testing.assert_allclose(exp_compose(delta, T), se3.exp(delta) @ T, atol=1e-12)
 
 
-def test_config_defaults_are_the_papers_but_the_depth_prior_and_overrides_are_checked():
+def test_config_defaults_are_the_papers_but_the_depth_prior_and_thresholds_and_overrides_are_checked():
     cfg = VOSFConfig()
+    assert (cfg.residual_floor, cfg.residual_ceiling) == (0.002, 0.004)  # t_B, t_M: module notes
     assert cfg.num_clusters == 24 and (cfg.cluster_grid_cols, cfg.cluster_grid_rows) == (6, 4)
     assert (cfg.photometric_weight, cfg.occlusion_threshold_m, cfg.zmin_fraction) == (0.15, 0.2, 0.25)
     assert (cfg.lambda_spatial, cfg.lambda_temporal, cfg.lambda_depth) == (0.5, 1.5, 0.02)  # lambda_Z: module notes
