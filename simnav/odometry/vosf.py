@@ -173,8 +173,8 @@ class VOSFConfig:
         lambda_spatial, lambda_temporal, lambda_depth: ``lambda_R``, ``lambda_T``, ``lambda_Z`` of (13)–(15)
             (``lambda_Z`` 0.005, not the paper's 0.15: see the module notes).
         zmin_fraction: ``Z_Min`` of (15) is this fraction of the mean scene depth.
-        residual_floor, residual_ceiling: ``t_B`` and ``t_M`` of (21), tuned for simnav's simulated camera (module
-            notes; the public code's 0.007 and 0.015 suit a real Kinect).
+        residual_floor, residual_ceiling: ``t_B`` and ``t_M`` of (21), chosen for simnav's simulated camera (module
+            notes; the public code's 0.007 and 0.015 were set for real cameras).
         motion_gain: growth of the thresholds with the norm of the camera motion per frame (21)–(22).
         static_below, moving_above: clusters with ``b`` below / above are static / moving; in between uncertain.
         preweight_kz, preweight_ki: ``K_Z``, ``K_I`` of (18)–(19).

@@ -274,7 +274,7 @@ def test_a_person_walking_2_5_m_ahead_is_segmented_moving():
         person_px = f.body_id == 0
         assert 2.4 < np.median(f.depth_m[person_px]) < 2.55 and person_px.mean() > 0.15
         assert e.extra["moving_mask"][person_px].mean() > 0.9  # measured: 100 %
-        # clusters shared by the person and the wall behind (measured: 7-8 %; 3-4 % with the public code's t_B, t_M)
+        # clusters shared by the person and the wall behind (measured: 7-8 %; 3-4 % with the previous defaults)
         assert e.extra["moving_mask"][~person_px].mean() < 0.1
 
 
