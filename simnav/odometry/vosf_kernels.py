@@ -18,7 +18,10 @@ the number of threads. Importing this module sets ``OMP_WAIT_POLICY=passive`` un
 Numba has not started its OpenMP threads yet (first parallel loop or ``numba.get_num_threads()``): idle threads then
 sleep instead of spinning, and a sleeping thread gets its core back at once when another process runs there. With
 spinning threads, a core shared with another busy process made a QVGA frame 3 to 8 times slower than on one thread.
-``@njit(cache=True)`` compiles on first use, then loads from ``__pycache__``.
+Every kernel compiles with NumPy's error model (``error_model="numpy"``: no check before each division, where the
+kernels guard their divisions themselves), which made a QVGA frame 6 % faster (``python scripts/bench_odometry_ab.py
+REV --method vosf --threads 2``, same poses to the bit). ``@njit`` with ``cache=True`` compiles on first use, then
+loads from ``__pycache__``.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ _UPPER = np.array([[0, 1, 2, 3, 4, 5], [1, 6, 7, 8, 9, 10], [2, 7, 11, 12, 13, 1
 # Pyramid and gradients
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def downsample(depth: np.ndarray, intensity: np.ndarray, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Halves an RGB-D image without mixing depths across discontinuities.
 
@@ -91,14 +94,14 @@ def downsample(depth: np.ndarray, intensity: np.ndarray, gate_m: float) -> tuple
     return d_out, i_out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _downsample_par(depth: np.ndarray, intensity: np.ndarray, gate_m: float, d_out: np.ndarray,
                     i_out: np.ndarray) -> None:
     for v in prange(d_out.shape[0]):
         _downsample_row(depth, intensity, gate_m, v, d_out, i_out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _downsample_row(depth: np.ndarray, intensity: np.ndarray, gate_m: float, v: int, d_out: np.ndarray,
                     i_out: np.ndarray) -> None:
     """Row v of :func:`downsample` into ``d_out``, ``i_out``."""
@@ -133,7 +136,7 @@ def _downsample_row(depth: np.ndarray, intensity: np.ndarray, gate_m: float, v: 
         i_out[v, u] = smi / sm
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def level_pack(depth: np.ndarray, intensity: np.ndarray, eps_m: float) -> np.ndarray:
     """(h, w, ``PACK``) pack of a level: depth, intensity, their edge-aware gradients (:func:`_gradient`) at
     valid-depth pixels (0 elsewhere) and a zero moving probability.
@@ -152,13 +155,13 @@ def level_pack(depth: np.ndarray, intensity: np.ndarray, eps_m: float) -> np.nda
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _level_pack_par(depth: np.ndarray, intensity: np.ndarray, eps_m: float, out: np.ndarray) -> None:
     for v in prange(depth.shape[0]):
         _level_pack_row(depth, intensity, eps_m, v, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _level_pack_row(depth: np.ndarray, intensity: np.ndarray, eps_m: float, v: int, out: np.ndarray) -> None:
     """Row v of :func:`level_pack` into ``out``."""
     for u in range(depth.shape[1]):
@@ -169,7 +172,7 @@ def _level_pack_row(depth: np.ndarray, intensity: np.ndarray, eps_m: float, v: i
             out[v, u, C_ZV], out[v, u, C_IV] = _gradient(depth, intensity, v, u, 1, 0, eps_m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gradient(depth: np.ndarray, intensity: np.ndarray, v: int, u: int, dv: int, du: int,
               eps_m: float) -> tuple[float, float]:
     """Edge-aware ``(dz, di)`` per pixel at valid pixel (v, u) along the step (dv, du).
@@ -199,7 +202,7 @@ def _gradient(depth: np.ndarray, intensity: np.ndarray, v: int, u: int, dv: int,
     return 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def depth_edges(depth: np.ndarray, threshold_m: float) -> np.ndarray:
     """(h, w) bool: valid pixels whose absolute depth differences to their 4 neighbours (an invalid or missing
     neighbour counts as depth 0) sum to ``threshold_m`` or more."""
@@ -216,7 +219,7 @@ def depth_edges(depth: np.ndarray, threshold_m: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def set_moving(pack: np.ndarray, labels: np.ndarray, b: np.ndarray) -> None:
     """Writes the moving probability ``b`` (k,) of every pixel's cluster into channel ``C_B`` of a (h, w, ``PACK``)
     pack (0 where ``labels`` (h, w) is -1)."""
@@ -230,7 +233,7 @@ def set_moving(pack: np.ndarray, labels: np.ndarray, b: np.ndarray) -> None:
 # Geometric clustering
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cell_medians(depth: np.ndarray, u_edges: np.ndarray, v_edges: np.ndarray) -> np.ndarray:
     """(rows * cols) median valid depth of each cell ``[v_edges[r], v_edges[r + 1]) x [u_edges[c], u_edges[c + 1])``
     of an image grid, row-major; NaN for a cell without valid depth."""
@@ -250,7 +253,7 @@ def cell_medians(depth: np.ndarray, u_edges: np.ndarray, v_edges: np.ndarray) ->
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def kmeans(points: np.ndarray, centres: np.ndarray, max_iterations: int, tol_m: float) -> tuple[np.ndarray,
                                                                                                np.ndarray]:
     """Lloyd's K-means on 3D points from given initial centres (a centre that loses all its points stays put).
@@ -292,7 +295,7 @@ def kmeans(points: np.ndarray, centres: np.ndarray, max_iterations: int, tol_m: 
     return c, labels
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nearest(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.ndarray, labels: np.ndarray) -> None:
     """Writes the index of the nearest centre of every point (coordinates (n,) each) into ``labels``."""
     n = px.shape[0]
@@ -304,7 +307,7 @@ def _nearest(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.ndarray
             _nearest_run(px[lo:hi], py[lo:hi], pz[lo:hi], centres, labels[lo:hi])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _nearest_par(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.ndarray, labels: np.ndarray) -> None:
     n = px.shape[0]
     for blk in prange((n + BLOCK - 1) // BLOCK):
@@ -312,7 +315,7 @@ def _nearest_par(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.nda
         _nearest_run(px[lo:hi], py[lo:hi], pz[lo:hi], centres, labels[lo:hi])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nearest_run(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.ndarray, labels: np.ndarray) -> None:
     """:func:`_nearest` of a contiguous run of points, point by point with the nearest so far in registers (0.7x
     the time of a centre-by-centre pass over the run); the lowest index wins a tie."""
@@ -328,7 +331,7 @@ def _nearest_run(px: np.ndarray, py: np.ndarray, pz: np.ndarray, centres: np.nda
         labels[i] = nearest
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def assign_labels(x: np.ndarray, y: np.ndarray, z: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """(h, w) int32 label of the nearest centre of every valid pixel's 3D point, -1 where ``z`` is 0.
 
@@ -345,13 +348,13 @@ def assign_labels(x: np.ndarray, y: np.ndarray, z: np.ndarray, centres: np.ndarr
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _assign_labels_par(x: np.ndarray, y: np.ndarray, z: np.ndarray, centres: np.ndarray, out: np.ndarray) -> None:
     for v in prange(z.shape[0]):
         _assign_labels_row(x, y, z, centres, v, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _assign_labels_row(x: np.ndarray, y: np.ndarray, z: np.ndarray, centres: np.ndarray, v: int,
                        out: np.ndarray) -> None:
     """Row v of :func:`assign_labels` into ``out``."""
@@ -361,7 +364,7 @@ def _assign_labels_row(x: np.ndarray, y: np.ndarray, z: np.ndarray, centres: np.
             out[v, u] = -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def connectivity(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray, k: int, gap_m: float,
                  gap_px: float, f_px: float) -> np.ndarray:
     """(k, k) bool graph G: clusters i != j are contiguous when some pair of 4-neighbouring pixels labelled i and
@@ -389,7 +392,7 @@ def connectivity(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray
     return G
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def label_order(labels: np.ndarray, idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The listed pixels grouped by cluster: ``order[offsets[l]:offsets[l + 1]]`` are the flat indices (from
     ``idx``, in its order) whose label in the flat ``labels`` is l (stable counting sort; (n,) and (k + 1,))."""
@@ -406,7 +409,7 @@ def label_order(labels: np.ndarray, idx: np.ndarray, k: int) -> tuple[np.ndarray
     return order, offsets
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def background_pixels(labels: np.ndarray, idx: np.ndarray, b: np.ndarray, moving_above: float
                       ) -> tuple[np.ndarray, np.ndarray]:
     """``(pixels, scales)``: the listed flat indices whose cluster has ``b <= moving_above`` (in order) and their
@@ -423,7 +426,7 @@ def background_pixels(labels: np.ndarray, idx: np.ndarray, b: np.ndarray, moving
     return keep[:n], scales[:n]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cluster_depths(labels: np.ndarray, idx: np.ndarray, depth: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """``(counts, sums)``: (k,) number of listed pixels and sum of their flat ``depth`` per cluster (in order)."""
     counts = np.zeros(k)
@@ -438,7 +441,7 @@ def cluster_depths(labels: np.ndarray, idx: np.ndarray, depth: np.ndarray, k: in
 # Warping, residuals and IRLS
 
 
-@njit(cache=True, inline="always")  # at the call site: unused samples are never computed
+@njit(cache=True, error_model="numpy", inline="always")  # at the call site: unused samples are never computed
 def _warp_sample(T: np.ndarray, x: float, y: float, z: float, cam: np.ndarray, pack: np.ndarray,
                  gate_m: float) -> tuple:
     """Warps the point (x, y, z) with T and samples the target pack there.
@@ -480,14 +483,14 @@ def _warp_sample(T: np.ndarray, x: float, y: float, z: float, cam: np.ndarray, p
             pack[vn, un, C_IU], pack[vn, un, C_IV], pack[vn, un, C_B])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _blend(pack: np.ndarray, v0: int, u0: int, v1: int, u1: int, ch: int, w00: float, w01: float, w10: float,
            w11: float) -> float:
     """Bilinear blend of channel ``ch`` over the pixels (v0, u0), (v0, u1), (v1, u0), (v1, u1)."""
     return w00 * pack[v0, u0, ch] + w01 * pack[v0, u1, ch] + w10 * pack[v1, u0, ch] + w11 * pack[v1, u1, ch]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def linearize(idx: np.ndarray, scale: np.ndarray, x1: np.ndarray, y1: np.ndarray, pack1: np.ndarray,
               symmetric: bool, T: np.ndarray, cam: np.ndarray, pack2: np.ndarray, use_b: bool, use_photo: bool,
               gate_m: float, mode: int, alpha: float, kz: float, ki: float, r: np.ndarray, J: np.ndarray,
@@ -535,7 +538,7 @@ def linearize(idx: np.ndarray, scale: np.ndarray, x1: np.ndarray, y1: np.ndarray
                        kz, ki, r, J, ok)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _linearize_par(idx: np.ndarray, scale: np.ndarray, x1: np.ndarray, y1: np.ndarray, f1: np.ndarray,
                    symmetric: bool, T: np.ndarray, cam: np.ndarray, pack2: np.ndarray, use_b: bool, use_photo: bool,
                    gate_m: float, mode: int, alpha: float, kz: float, ki: float, r: np.ndarray, J: np.ndarray,
@@ -546,7 +549,7 @@ def _linearize_par(idx: np.ndarray, scale: np.ndarray, x1: np.ndarray, y1: np.nd
                        use_photo, gate_m, mode, alpha, kz, ki, r, J, ok)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _linearize_run(lo: int, hi: int, idx: np.ndarray, scale: np.ndarray, x1: np.ndarray, y1: np.ndarray,
                    f1: np.ndarray, symmetric: bool, T: np.ndarray, cam: np.ndarray, pack2: np.ndarray, use_b: bool,
                    use_photo: bool, gate_m: float, mode: int, alpha: float, kz: float, ki: float, r: np.ndarray,
@@ -575,7 +578,7 @@ def _linearize_run(lo: int, hi: int, idx: np.ndarray, scale: np.ndarray, x1: np.
             _clear_pixel(r, J, k)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _preweights(f1: np.ndarray, q: int, mode: int, b: float, scale: float, rz: float, ri: float, alpha: float,
                 kz: float, ki: float) -> tuple[float, float]:
     """Pre-weights ``(m_Z, m_I)`` of the residuals of flat reference pixel q (``f1``: (h * w, ``PACK``) pack), see
@@ -588,7 +591,7 @@ def _preweights(f1: np.ndarray, q: int, mode: int, b: float, scale: float, rz: f
     return mz, mi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _write_rows(r: np.ndarray, J: np.ndarray, k: int, mz: float, mi: float, rz: float, ri: float, zu: float,
                 zv: float, iu: float, iv: float, fx: float, fy: float, px: float, py: float, pz: float) -> None:
     """Writes the weighted residuals and Jacobian rows of pixel k (gradients per pixel, warped point p)."""
@@ -606,7 +609,7 @@ def _write_rows(r: np.ndarray, J: np.ndarray, k: int, mz: float, mi: float, rz: 
     _jacobian_row(J, k, 1, mi, gx, gy, gz, px, py, pz)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _clear_pixel(r: np.ndarray, J: np.ndarray, k: int) -> None:
     """Zeroes the residuals and Jacobian rows of pixel k."""
     for row in range(2):
@@ -615,7 +618,7 @@ def _clear_pixel(r: np.ndarray, J: np.ndarray, k: int) -> None:
             J[row, c, k] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _jacobian_row(J: np.ndarray, k: int, row: int, m: float, gx: float, gy: float, gz: float, px: float,
                   py: float, pz: float) -> None:
     """Writes ``m * [g, p x g]`` into ``J[row, :, k]``."""
@@ -627,7 +630,7 @@ def _jacobian_row(J: np.ndarray, k: int, row: int, m: float, gx: float, gy: floa
     J[row, 5, k] = m * (px * gy - py * gx)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cluster_residuals(idx: np.ndarray, labels: np.ndarray, edges: np.ndarray, zbar: np.ndarray, x1: np.ndarray,
                       y1: np.ndarray, pack1: np.ndarray, T: np.ndarray, cam: np.ndarray, pack2: np.ndarray,
                       use_b: bool, use_photo: bool, gate_m: float, alpha: float, occlusion_m: float) -> np.ndarray:
@@ -659,7 +662,7 @@ def cluster_residuals(idx: np.ndarray, labels: np.ndarray, edges: np.ndarray, zb
     return _sum_blocks(parts)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _cluster_residuals_par(idx: np.ndarray, labels: np.ndarray, edges: np.ndarray, zbar: np.ndarray, x1: np.ndarray,
                            y1: np.ndarray, f1: np.ndarray, T: np.ndarray, cam: np.ndarray, pack2: np.ndarray,
                            use_b: bool, use_photo: bool, gate_m: float, alpha: float, occlusion_m: float,
@@ -669,7 +672,7 @@ def _cluster_residuals_par(idx: np.ndarray, labels: np.ndarray, edges: np.ndarra
                                  alpha, occlusion_m, parts[blk])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cluster_residuals_block(blk: int, idx: np.ndarray, labels: np.ndarray, edges: np.ndarray, zbar: np.ndarray,
                              x1: np.ndarray, y1: np.ndarray, f1: np.ndarray, T: np.ndarray, cam: np.ndarray,
                              pack2: np.ndarray, use_b: bool, use_photo: bool, gate_m: float, alpha: float,
@@ -691,7 +694,7 @@ def _cluster_residuals_block(blk: int, idx: np.ndarray, labels: np.ndarray, edge
             out[lab, 1] += alpha * abs(ri) + min(abs(rz), occlusion_m) / zbar[lab]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def irls_cauchy(r: np.ndarray, J: np.ndarray, ok: np.ndarray, rows: int, c_factor: float, max_iterations: int,
                 chi2_ratio: float, delta_tol: float) -> tuple[np.ndarray, np.ndarray, float, int]:
     """Minimises ``sum F(r + J delta)`` with the Cauchy penalty (5) by iteratively reweighted least squares.
@@ -745,7 +748,7 @@ def irls_cauchy(r: np.ndarray, J: np.ndarray, ok: np.ndarray, rows: int, c_facto
     return delta, H, s2, m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sum_blocks(parts: np.ndarray) -> np.ndarray:
     """Sum over the first axis of the (nb, ...) block partials, blocks added in order."""
     out = parts[0].copy()
@@ -754,7 +757,7 @@ def _sum_blocks(parts: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _residual_blocks(r: np.ndarray, J: np.ndarray, rows: int, delta: np.ndarray, e: np.ndarray,
                      parts: np.ndarray) -> None:
     """``e = r + J delta`` and ``parts[blk, 0]``: the sum of ``|e|`` over each block."""
@@ -765,14 +768,14 @@ def _residual_blocks(r: np.ndarray, J: np.ndarray, rows: int, delta: np.ndarray,
             _residual_block(blk, r, J, rows, delta, e, parts)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _residual_blocks_par(r: np.ndarray, J: np.ndarray, rows: int, delta: np.ndarray, e: np.ndarray,
                          parts: np.ndarray) -> None:
     for blk in prange(parts.shape[0]):
         _residual_block(blk, r, J, rows, delta, e, parts)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _residual_block(blk: int, r: np.ndarray, J: np.ndarray, rows: int, delta: np.ndarray, e: np.ndarray,
                     parts: np.ndarray) -> None:
     """Block ``blk`` of :func:`_residual_blocks`."""
@@ -784,7 +787,7 @@ def _residual_block(blk: int, r: np.ndarray, J: np.ndarray, rows: int, delta: np
     parts[blk, 0] = total
 
 
-@njit(cache=True, fastmath={"reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
 def _residual_row(r: np.ndarray, j0: np.ndarray, j1: np.ndarray, j2: np.ndarray, j3: np.ndarray, j4: np.ndarray,
                   j5: np.ndarray, delta: np.ndarray, e: np.ndarray) -> float:
     """``e = r + J delta`` for one residual row of a block (all (m,)); returns the sum of ``|e|`` (vectorised:
@@ -798,7 +801,7 @@ def _residual_row(r: np.ndarray, j0: np.ndarray, j1: np.ndarray, j2: np.ndarray,
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _normal_blocks(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, inv_c2: float, parts: np.ndarray) -> None:
     """``parts[blk]``: the Cauchy-weighted normal equations of each block (:func:`_normal_block`)."""
     n = r.shape[1]
@@ -809,7 +812,7 @@ def _normal_blocks(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, inv_c
             _normal_block(r, J, e, rows, blk * BLOCK, min(n, (blk + 1) * BLOCK), inv_c2, parts[blk])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _normal_blocks_par(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, inv_c2: float,
                        parts: np.ndarray) -> None:
     n = r.shape[1]
@@ -817,7 +820,7 @@ def _normal_blocks_par(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, i
         _normal_block(r, J, e, rows, blk * BLOCK, min(n, (blk + 1) * BLOCK), inv_c2, parts[blk])
 
 
-@njit(cache=True, error_model="numpy")  # no zero-division check: the weight loop vectorises
+@njit(cache=True, error_model="numpy")
 def _normal_block(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, lo: int, hi: int, inv_c2: float,
                   out: np.ndarray) -> None:
     """Sums over pixels ``lo:hi`` ((2, n) residuals r, (2, 6, n) Jacobians, (2, n) current residuals e) of
@@ -841,7 +844,7 @@ def _normal_block(r: np.ndarray, J: np.ndarray, e: np.ndarray, rows: int, lo: in
                 out[_UPPER[a, b]] += _dot(wa, J[j, b, lo:hi])
 
 
-@njit(cache=True, fastmath={"reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
     """``sum a * b`` of two (m,) arrays, vectorised (any summation order)."""
     total = 0.0
@@ -850,7 +853,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_compose(delta: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(4, 4) ``exp(delta) @ T`` for a twist ``delta = (nu, omega)``: the update of every Gauss-Newton step.
 
@@ -876,7 +879,7 @@ def exp_compose(delta: np.ndarray, T: np.ndarray) -> np.ndarray:
 # Scene flow
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scene_flow(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray, motions: np.ndarray,
                centres: np.ndarray, G: np.ndarray, sharpness_per_m: float, cutoff: float) -> np.ndarray:
     """Per-pixel 3D flow from per-cluster rigid motions, blended across contiguous cluster boundaries.
@@ -908,7 +911,7 @@ def scene_flow(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray, 
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _blend_lists(G: np.ndarray) -> np.ndarray:
     """(k, k + 1): per cluster l, the count n of clusters blended into its flow (itself and those contiguous to it,
     ``G``) in column 0, then their indices, increasing, in columns 1..n."""
@@ -922,7 +925,7 @@ def _blend_lists(G: np.ndarray) -> np.ndarray:
     return near
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def _scene_flow_par(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray, motions: np.ndarray,
                     centres: np.ndarray, near: np.ndarray, sharpness_per_m: float, cutoff: float,
                     out: np.ndarray) -> None:
@@ -930,7 +933,7 @@ def _scene_flow_par(x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndar
         _scene_flow_row(v, x, y, z, labels, motions, centres, near, sharpness_per_m, cutoff, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scene_flow_row(v: int, x: np.ndarray, y: np.ndarray, z: np.ndarray, labels: np.ndarray, motions: np.ndarray,
                     centres: np.ndarray, near: np.ndarray, sharpness_per_m: float, cutoff: float,
                     out: np.ndarray) -> None:
@@ -942,7 +945,7 @@ def _scene_flow_row(v: int, x: np.ndarray, y: np.ndarray, z: np.ndarray, labels:
                                                                      near, sharpness_per_m, cutoff)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _blended_flow(p0: float, p1: float, p2: float, lab: int, motions: np.ndarray, centres: np.ndarray,
                   near: np.ndarray, sharpness_per_m: float, cutoff: float) -> tuple[float, float, float]:
     """Flow of point p of cluster ``lab`` (see :func:`scene_flow`)."""
