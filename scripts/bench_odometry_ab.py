@@ -10,7 +10,11 @@ median of the paired ratios B/A, which the swings cancel out of, and the largest
 versions' final poses.
 
     python scripts/bench_odometry_ab.py BASE_REV [NEW_REV] [--method difodo|vosf] [--rounds 20] [--frames 40]
-                                        [--resolution qvga|qqvga] [--threads 1]
+                                        [--resolution qvga|qqvga] [--threads 1] [--sequence NAME]
+
+``--sequence NAME`` takes the first ``--frames`` frames of a simulated office sequence of
+``scripts/bench_rgbd_odometry.py`` (e.g. ``handheld-people4``; read from its cache, simulated there first if needed)
+instead of the synthetic frames: the office's frames need more work per frame than the synthetic room's.
 
 ``NEW_REV`` defaults to the working tree (not an export: uncommitted changes count).
 """
@@ -68,6 +72,17 @@ def make_frames(method: str, resolution: str, n: int) -> list:
     return bench.make_frames(n, *bench.RESOLUTIONS[resolution])[0]
 
 
+def office_frames(name: str, n: int) -> list:
+    """The first n frames of the bench sequence ``name`` of ``bench_rgbd_odometry.py`` (seed 0, 10 s, as its
+    defaults), from its cache under ``runs/bench_rgbd_cache`` (simulated first if missing)."""
+    import bench_rgbd_odometry as rgbd
+
+    if name not in rgbd.ALL_SEQUENCES:
+        raise SystemExit(f"--sequence must be one of {', '.join(rgbd.ALL_SEQUENCES)}, got {name!r}")
+    folder = rgbd.simulate(name, 10.0, 0, 4, print)
+    return rgbd.load(folder).frames[:n]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("base", help="git revision A")
@@ -77,12 +92,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=40, help="frames per pass")
     parser.add_argument("--resolution", choices=["qvga", "qqvga"], default="qvga")
     parser.add_argument("--threads", type=int, default=1, help="cores pinned and threads per library")
+    parser.add_argument("--sequence", help="frames of this office sequence of bench_rgbd_odometry.py (QVGA)")
     args = parser.parse_args()
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else list(range(os.cpu_count() or 1))
     if args.threads < 1 or args.threads > len(cores):
         raise SystemExit(f"--threads must be between 1 and {len(cores)}, got {args.threads}")
     pinned = ",".join(str(c) for c in cores[-args.threads:])
-    frames = make_frames(args.method, args.resolution, args.frames)
+    frames = (office_frames(args.sequence, args.frames) if args.sequence
+              else make_frames(args.method, args.resolution, args.frames))
     with tempfile.TemporaryDirectory() as tmp:
         frames_file = Path(tmp) / "frames.pkl"
         frames_file.write_bytes(pickle.dumps(frames))
@@ -95,8 +112,8 @@ def main() -> None:
         times = [[float(fields[0]) for fields in rows] for rows in replies]
         poses = [np.array([float(x) for x in rows[-1][1:]]).reshape(4, 4) for rows in replies]
     names = [args.base, args.new or "working tree"]
-    print(f"{args.method} {args.resolution}, {args.frames} frames per pass, {args.rounds} passes each, "
-          f"{args.threads} thread(s)")
+    print(f"{args.method} {args.sequence or args.resolution}, {len(frames)} frames per pass, {args.rounds} passes "
+          f"each, {args.threads} thread(s)")
     for name, ts in zip(names, times, strict=True):
         print(f"{name}: median {1e3 * statistics.median(ts):.2f} ms per frame (best pass {1e3 * min(ts):.2f})")
     paired = statistics.median(b / a for a, b in zip(times[0], times[1], strict=True))
