@@ -104,6 +104,35 @@ def test_irls_matches_a_dense_reweighted_least_squares(n):
     np.testing.assert_allclose(delta, [0.01, -0.02, 0.005, 0.001, 0.002, -0.003], atol=1e-3)
 
 
+def lloyd(points: np.ndarray, centres: np.ndarray, max_iterations: int, tol_m: float) -> tuple[np.ndarray,
+                                                                                              np.ndarray]:
+    """Plain Lloyd's K-means with kmeans' rules: every point searched every round, a centre without points stays."""
+    c = centres.copy()
+    for _ in range(max_iterations):
+        labels = np.argmin(((points[:, None, :] - c[None]) ** 2).sum(axis=2), axis=1)
+        new = c.copy()
+        for k in range(len(c)):
+            if np.any(labels == k):
+                new[k] = points[labels == k].mean(axis=0)
+        moved, c = np.max(np.linalg.norm(new - c, axis=1)), new
+        if moved < tol_m:
+            break
+    return c, np.argmin(((points[:, None, :] - c[None]) ** 2).sum(axis=2), axis=1)
+
+
+@pytest.mark.parametrize("n", [3000, 20000])  # one thread / several
+def test_kmeans_skipping_points_by_their_bounds_gives_lloyds_labels(n):
+    rng = np.random.default_rng(n)
+    pts = rng.normal(size=(n, 3)) * [1.5, 1.0, 0.8] + [0.0, 0.0, 3.0]
+    pts[: n // 4] += [2.0, 0.0, 1.0]  # a second blob
+    init = pts[rng.choice(n, 24, replace=False)].copy()
+    for iterations, tol in ((10, 0.01), (30, 1e-9)):
+        centres, labels = kern.kmeans(pts, init, iterations, tol)
+        ref_centres, ref_labels = lloyd(pts, init, iterations, tol)
+        np.testing.assert_array_equal(labels, ref_labels)
+        np.testing.assert_allclose(centres, ref_centres, rtol=0, atol=1e-12)
+
+
 def test_kmeans_and_labels_are_the_nearest_centres():
     rng = np.random.default_rng(1)
     pts = np.vstack([rng.normal(c, 0.3, size=(2000, 3)) for c in ([0, 0, 2], [1, 0, 3], [0, 1, 4], [1, 1, 2])])
