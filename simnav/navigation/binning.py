@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _keep(x: float, y: float, z: float, floor_m: float, max_xy_m: float) -> bool:
     """A finite point above the floor with |x|, |y| <= max_xy_m."""
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
@@ -37,7 +37,7 @@ def _keep(x: float, y: float, z: float, floor_m: float, max_xy_m: float) -> bool
     return z >= floor_m and abs(x) <= max_xy_m and abs(y) <= max_xy_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sort_points(points: np.ndarray, z_min: np.ndarray, z_max: np.ndarray, floor_m: float,
                 max_xy_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(xy (K, 2), ptr (B + 1,)): the kept points of band b are ``xy[ptr[b]:ptr[b + 1]]``, in input order.
@@ -83,7 +83,7 @@ def sort_points(points: np.ndarray, z_min: np.ndarray, z_max: np.ndarray, floor_
     return xy, ptr
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sort_points_overlapping(points: np.ndarray, z_min: np.ndarray, z_max: np.ndarray, floor_m: float,
                              max_xy_m: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`sort_points` for bands whose height intervals overlap (a point may go to several)."""
@@ -110,7 +110,7 @@ def _sort_points_overlapping(points: np.ndarray, z_min: np.ndarray, z_max: np.nd
     return xy, ptr
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cell(x: float, y: float, n_side: int, half_extent_m: float, resolution_m: float) -> int:
     """Cell ``ix * n_side + iy`` of a point, ``(ix, iy) = floor((p + half_extent) / resolution)`` as
     :meth:`CollisionGrid.cell_index`; -1 outside the grid (NaN too)."""
@@ -125,7 +125,7 @@ START, NOTHING = 255, 254
 """Cell marks (uint8) of :func:`mark_cells`: a start cell, a cell without path distances; stamps are 1..253."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mark_cells(xy: np.ndarray, ptr: np.ndarray, n_side: np.ndarray, half_extent_m: np.ndarray,
                resolution_m: float, cell_offset: np.ndarray, mark: np.ndarray,
                stamp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -170,7 +170,7 @@ def mark_cells(xy: np.ndarray, ptr: np.ndarray, n_side: np.ndarray, half_extent_
     return cells[:n_cells], start[:n_start], start_ptr
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ranges_min(records: np.ndarray, data: np.ndarray, cells: np.ndarray, out: np.ndarray) -> None:
     """Running minimum into ``out`` (P, N) uint8 of the PTGs' path-distance runs of ``cells``.
 
@@ -190,7 +190,7 @@ def ranges_min(records: np.ndarray, data: np.ndarray, cells: np.ndarray, out: np
             at += count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def effective_obstacle_distance(xy: np.ndarray, lo_x: float, lo_y: float, hi_x: float, hi_y: float,
                                 lateral_weight: float, upper: float) -> float:
     """min(upper, min over the points of (gap to the box [lo, hi]) / (direction weight)), m.
@@ -214,7 +214,7 @@ def effective_obstacle_distance(xy: np.ndarray, lo_x: float, lo_y: float, hi_x: 
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def points_near(xy: np.ndarray, ptr: np.ndarray, cx: float, cy: float,
                 radius_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(xy (K', 2), ptr (B + 1,)): the points of each band b within ``radius_m[b]`` of (cx, cy), in order."""
@@ -234,7 +234,7 @@ def points_near(xy: np.ndarray, ptr: np.ndarray, cx: float, cy: float,
     return out[:n].copy(), out_ptr
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def merge_bands(xy: np.ndarray, ptr: np.ndarray, extra_xy: np.ndarray,
                 extra_ptr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(xy (K + E, 2), ptr (B + 1,)): per band, its points of ``xy`` followed by its points of ``extra_xy``."""

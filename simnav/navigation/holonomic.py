@@ -95,7 +95,7 @@ def _path_index(alpha_rad: float, num_paths: int) -> int:
     return min(max(k, 0), num_paths - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _obstacles_valid(obs: np.ndarray) -> bool:
     """All TP-obstacles finite and >= 0 (NaN fails), in one pass."""
     for v in obs:
@@ -495,7 +495,7 @@ def _direction_tables(n: int) -> np.ndarray:
     return tables
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nd_kernel(obs: np.ndarray, target_k: int, target_dist: float, max_obs: float, last_k: int, params: np.ndarray,
                tables: np.ndarray, gaps: np.ndarray) -> tuple[int, int, float, float, int]:
     """Compiled ND decision (steps 1-3 of :class:`HolonomicND` and the risk).
@@ -563,7 +563,7 @@ def _nd_kernel(obs: np.ndarray, target_k: int, target_dist: float, max_obs: floa
     return code, k, evaluation, risk, g
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _nd_gaps(obs: np.ndarray, target_dist: float, floor_ratio: float, scratch: np.ndarray) -> int:
     """The gaps that survive MRPT's filters, in search order (threshold ratio 0.95 first, then by index): writes
     their first and last paths into ``scratch[:N]`` and ``scratch[N:2N]`` and returns their number; ``scratch`` is
@@ -645,14 +645,14 @@ def _nd_gaps(obs: np.ndarray, target_dist: float, floor_ratio: float, scratch: n
     return m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _circular_distance(k: int, target_k: int, n: int) -> int:
     """Number of paths between k and target_k around the circle."""
     d = abs(k - target_k)
     return n - d if d > 0.5 * n else d
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _nd_score(obs: np.ndarray, a: int, b: int, rep: int, cumsum: np.ndarray, target_k: int, td: float, px: float,
               py: float, max_obs: float, last_k: int, hysteresis: int, params: np.ndarray,
               tables: np.ndarray) -> float:
@@ -677,7 +677,7 @@ def _nd_score(obs: np.ndarray, a: int, b: int, rep: int, cumsum: np.ndarray, tar
     return (params[3] * f1 + params[4] * f2 + params[5] * f3 + params[6] * f4) / params[7]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _target_directly(obs: np.ndarray, target_k: int, td: float, max_obs: float) -> bool:
     """MRPT's rule D1: the target path is not near the array ends and the ±ceil(2% N) paths around it are free
     for at least min(1.05 d_target, 0.95 max_obs)."""
@@ -692,7 +692,7 @@ def _target_directly(obs: np.ndarray, target_k: int, td: float, max_obs: float) 
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pairwise_sum(a: np.ndarray, start: int, count: int) -> float:
     """sum(a[start : start + count]) exactly as numpy adds it (``np.add.reduce``'s pairwise summation: 8
     accumulators over blocks of up to 128, halves beyond), so that the risk is ``np.mean``'s to the bit."""

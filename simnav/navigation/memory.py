@@ -154,7 +154,7 @@ _NO_CELL = np.iinfo(np.int64).min
 """Key of a slot that holds no odom cell yet."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, scan_only: np.ndarray, step: int,
                    T: np.ndarray, xy: np.ndarray, ptr: np.ndarray, scan_xy: np.ndarray, scan_ptr: np.ndarray,
                    decay: np.float32, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -454,7 +454,7 @@ def _simulate(cfg: PTGConfig, alphas: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return buf[..., :3].copy(), buf[..., 4].copy(), buf[..., 3].copy(), count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _continuation_kernel(p: np.ndarray, x: np.ndarray, y: np.ndarray, heading: np.ndarray, d: np.ndarray,
                          turn_cost_m_per_rad: float, best: np.ndarray, cost: np.ndarray, gap: np.ndarray) -> None:
     """For each point of p (F, 2), the sample j minimising ``d_j + turn_cost·|turn_j| + gap_j`` into (best, cost,

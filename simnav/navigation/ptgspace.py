@@ -218,7 +218,7 @@ class PTGSpace:
                                  max(d_norm, 0.0) * ptg.ref_distance_m, float(target_xy[0]), float(target_xy[1]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inverse_map_kernel(p: np.ndarray, resolution_m: float, mid: int, n: int, half_m: float, table_k: np.ndarray,
                         table_d: np.ndarray, table_exact: np.ndarray, ends: np.ndarray, end_dist: np.ndarray,
                         ref_distance_m: float, k: np.ndarray, d: np.ndarray, exact: np.ndarray) -> None:
@@ -245,7 +245,7 @@ def _inverse_map_kernel(p: np.ndarray, resolution_m: float, mid: int, n: int, ha
         k[i], d[i], exact[i] = best, best_total / ref_distance_m, False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _closest_approach(dist_m: np.ndarray, poses: np.ndarray, num_samples: int, k: int, d_m: float, tx: float,
                       ty: float) -> float:
     """min over the samples of path k up to distance ``d_m`` (as :meth:`PTG.step_for_distance`: the last sample
@@ -324,7 +324,7 @@ class _CellTable:
         return self._stamp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _merge_runs(rows: np.ndarray, data: np.ndarray, data_base: np.ndarray, records: np.ndarray,
                 out: np.ndarray) -> None:
     """Per cell, the PTGs' runs side by side from ``out[records[c, 0]]``, and their (first << 16) | count.

@@ -181,7 +181,7 @@ def gated_downsample(depth_m: np.ndarray, gate_m: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _downsample_kernel(z: np.ndarray, gate: float, out: np.ndarray) -> None:
     """Compiled :func:`gated_downsample`: writes the halved image into ``out``. Inside the image the window has
     fixed bounds and invalid or gated-out neighbours weigh 0 by a select (no branches: 0.6x the time); windows
@@ -261,7 +261,7 @@ def warp_depth(depth_m: np.ndarray, cam: LevelCamera, T_dst_src: np.ndarray, max
     return work.depth
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _warp_kernel(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, T: np.ndarray, fx: float, fy: float, cx: float,
                  cy: float, step: float, real: np.ndarray, drawn: np.ndarray, out: np.ndarray) -> None:
     """Compiled :func:`warp_depth`; ``step`` is the continuity limit as a fraction of depth per pixel, ``real``
@@ -316,13 +316,13 @@ def _warp_kernel(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, T: np.ndarray, f
             out[v, u] = 1.0 / best[v, u] if best[v, u] > 0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _same_surface(z0: float, z1: float, pixels: float, step: float) -> bool:
     """Whether two depths ``pixels`` apart lie on one surface (see :func:`warp_depth`)."""
     return abs(z1 - z0) <= step * pixels * min(z0, z1)
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _rasterise(au: float, av: float, ai: float, bu: float, bv: float, bi: float, cu: float, cv: float, ci: float,
                best: np.ndarray) -> None:
     """Rasterises the triangle of projected corners ``(u, v, inverse depth)`` a, b, c into ``best`` (largest

@@ -222,7 +222,7 @@ def edge_aware_gradient(depth_m: np.ndarray, cam: LevelCamera,
     return zu, zv, oku, okv
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float,
                   dt: float, xi: np.ndarray, kz: float, kl: float, k1: float, discontinuity_px: float,
                   information: bool, real: np.ndarray,
@@ -303,7 +303,7 @@ def _level_kernel(z_old: np.ndarray, z_new: np.ndarray, xn: np.ndarray, yn: np.n
     return Hm * scale, g * scale, bb * scale, rows, info, depth_sum / max(rows, 1)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: float, discontinuity_px: float,
                zu: np.ndarray, zv: np.ndarray, oku: np.ndarray, okv: np.ndarray) -> None:
     """Compiled :func:`edge_aware_gradient` of a float64 depth image, written into ``zu, zv, oku, okv``.
@@ -342,7 +342,7 @@ def _gradients(z: np.ndarray, xn: np.ndarray, yn: np.ndarray, fx: float, fy: flo
         above_diff, above_dist, below_diff, below_dist = below_diff, below_dist, above_diff, above_dist
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_n: float, has_n: bool,
                  limit: float) -> tuple[float, bool]:
     """Edge-aware gradient (3.44 / 3.45) of one pixel along one axis from the difference and distance to its
@@ -359,7 +359,7 @@ def _gradient_at(diff_p: float, dist_p: float, has_p: bool, diff_n: float, dist_
     return 0.0, False
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _centred_squared(f_prev: float, has_prev: bool, f: float, f_next: float, has_next: bool) -> float:
     """``(f(+1) - f(-1))^2`` (stencil [-1 0 1]) from a pixel's value and its two neighbours' along one axis;
     next to a missing neighbour the difference is twice the one-sided one, without neighbours 0."""
@@ -374,7 +374,7 @@ def _centred_squared(f_prev: float, has_prev: bool, f: float, f_next: float, has
     return diff * diff
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"}, inline="always")
 def _measurement_variance(xz: float, yz: float, z: float, a: float, b: float, c: float, fx: float, fy: float,
                           var_t: float, xi: tuple[float, float, float, float, float, float], kz: float) -> float:
     """Variance of one constraint from the depth noise (3.30 with the covariances 3.47–3.56).

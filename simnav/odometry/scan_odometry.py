@@ -245,7 +245,7 @@ class RangeFlowOdometry(ABC):
         return self._xi_last.copy()
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _upright_ranges(ranges: np.ndarray, order: np.ndarray, min_range_m: float, max_range_m: float) -> np.ndarray:
     """(N,) ``ranges[order]`` with NaN, inf and out-of-range beams set to 0, as :func:`planar_scan` returns them."""
     out = np.empty(len(order))
