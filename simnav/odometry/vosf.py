@@ -103,8 +103,9 @@ Where this implementation departs from the paper (and why):
   constrained along the wall, so the frames were not flagged, the noise decided the motion along the wall and the
   next prediction started from it (the estimate sped up to 1.4 m/s on the simulated hand-held office run with
   ``--seed 10``). At 80 x 60 the noise is averaged out and the wall's frames fall below ``degeneracy_threshold``;
-  a degenerate increment keeps the constant-velocity prediction along its unobservable directions
-  (``hold_degenerate``, as DIFODO does).
+  a degenerate increment keeps the translational part of the constant-velocity prediction along its unobservable
+  directions (``hold_degenerate``, as DIFODO does; holding the rotation too made the hand-held runs' rotational
+  error 1.5-2x as large, README).
 * An alignment that starts from a prediction (the constant-velocity guess; the robust odometry for the refined
   and cluster solves) skips the 15 x 20 level (``predicted_min_level_height_px``): what is left to find is within
   the finer levels' reach, whereas in a corridor whose end is beyond the depth range the 15 x 20 image leaves the
@@ -209,8 +210,8 @@ class VOSFConfig:
         degeneracy_width_px: that information is the alignment's at the pyramid level closest to this width
             (QVGA and QQVGA: 80 x 60): at the finest levels the depth noise's gradients make a plain wall filling
             the view look constrained along the wall (module notes).
-        hold_degenerate: a degenerate increment keeps the constant-velocity prediction along its unobservable
-            directions (else the solve's noise decides them, and the next prediction starts from that).
+        hold_degenerate: a degenerate increment keeps the constant-velocity prediction's translation along its
+            unobservable directions (else the solve's noise decides it, and the next prediction starts from that).
     """
 
     cluster_grid_cols: int = 6
@@ -665,12 +666,15 @@ class JointVOSF:
         return evecs[:, ~(evals > self.config.degeneracy_threshold * max(evals[-1], 1e-300))]
 
     def _held(self, T: np.ndarray, prior: np.ndarray, weak: np.ndarray, cur: _Frame) -> np.ndarray:
-        """``T`` moved onto the prediction ``prior`` along the ``weak`` directions (with ``hold_degenerate``)."""
+        """``T`` moved onto the prediction ``prior`` by the translational part of the difference along the ``weak``
+        directions (with ``hold_degenerate``)."""
         if weak.shape[1] == 0 or not self.config.hold_degenerate:
             return T
         S = _depth_scale(cur.mean_depth)
         y = np.linalg.solve(S, se3.log(prior @ se3.inverse(T)))  # left twist from T to the prediction, scaled
-        return se3.exp(S @ (weak @ (weak.T @ y))) @ T
+        held = weak @ (weak.T @ y)
+        held[3:] = 0.0  # the rotation stays measured (holding it too doubled the error in turns)
+        return se3.exp(S @ held) @ T
 
     def _covariance(self, sol: _Solve, weak: np.ndarray, cur: _Frame) -> np.ndarray:
         """Covariance of ``log(T_prev_curr)`` (right perturbation, current optical frame); the ``weak`` directions

@@ -420,7 +420,7 @@ def test_a_noisy_plain_wall_is_degenerate_and_keeps_the_predicted_slide():
         return [e.degenerate for e in est[4:]], max(motion_error(T, step)[0] for T in increments(est)[3:])
 
     flags, worst = run()
-    assert all(flags) and worst < 1e-3  # measured: 0.09 mm
+    assert all(flags) and worst < 1e-3  # measured: 0.36 mm
     flags, worst = run(degeneracy_width_px=320)  # the finest level decides: not degenerate, the slide wanders
     assert not any(flags) and worst > 5e-3  # measured: 15 mm
     flags, worst = run(hold_degenerate=False)  # flagged, but the noise decides the slide
