@@ -105,7 +105,7 @@ Where this implementation departs from the paper (and why):
   ``--seed 10``). At 80 x 60 the noise is averaged out and the wall's frames fall below ``degeneracy_threshold``;
   a degenerate increment keeps the translational part of the constant-velocity prediction along its unobservable
   directions (``hold_degenerate``, as DIFODO does; holding the rotation too made the hand-held runs' rotational
-  error 1.5-2x as large, README).
+  error 2-2.6x as large, README).
 * An alignment that starts from a prediction (the constant-velocity guess; the robust odometry for the refined
   and cluster solves) skips the 15 x 20 level (``predicted_min_level_height_px``): what is left to find is within
   the finer levels' reach, whereas in a corridor whose end is beyond the depth range the 15 x 20 image leaves the
@@ -673,7 +673,7 @@ class JointVOSF:
         S = _depth_scale(cur.mean_depth)
         y = np.linalg.solve(S, se3.log(prior @ se3.inverse(T)))  # left twist from T to the prediction, scaled
         held = weak @ (weak.T @ y)
-        held[3:] = 0.0  # the rotation stays measured (holding it too doubled the error in turns)
+        held[3:] = 0.0  # the rotation stays measured (held too, it erred 2-2.6x as much)
         return se3.exp(S @ held) @ T
 
     def _covariance(self, sol: _Solve, weak: np.ndarray, cur: _Frame) -> np.ndarray:
