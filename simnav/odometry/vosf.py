@@ -555,7 +555,7 @@ class JointVOSF:
                               False)
         final = refined if refined is not None else robust
         weak = self._weak_directions(final, cur)
-        T_O = self._held(final.T, prior, weak, cur)  # the prediction along unobservable directions
+        T_O = self._held(final.T, prior, weak, cur)  # the predicted translation along unobservable directions
         # 4b. Rigid motion of every moving or uncertain cluster (17), c = mean |r|.
         T_clusters = np.tile(T_O, (k, 1, 1))
         solved = self._cluster_motions(cur, prev, seg.b > cfg.static_below, T_O, use_photo, T_clusters)
