@@ -15,7 +15,7 @@ CDifodo's first-order linearisation term (``linearization_k1``), which down-weig
 without a neighbour on their own surface are edges and give no constraint (3.E.3 says they "must be ruled out");
 warping rasterises triangles instead of splatting points, and an invalid pixel stays invalid in the pyramid
 (:mod:`simnav.odometry.depth_pyramid`); a degenerate increment keeps the constant-velocity prediction along its
-least-constrained translation (``hold_degenerate``).
+least-constrained translations (``hold_degenerate``).
 
 Conventions:
 
@@ -94,9 +94,9 @@ class DifodoConfig:
         degeneracy_spacing_deg: that information is taken at the level whose pixel spacing is closest to this, deg
             (at the finest level depth noise swamps the surface normals).
         hold_degenerate: a degenerate increment keeps the constant-velocity prediction along the translational part
-            of its least-constrained direction (e.g. along a corridor of floor and one wall, where the depth images
-            do not change with the motion). Without it the coarse levels' noise decides that motion. Not in the
-            thesis.
+            of its least-constrained directions (those below ``degeneracy_threshold``: e.g. along a corridor of
+            floor and one wall, where the depth images do not change with the motion; along a plain wall filling
+            the view, two). Without it the coarse levels' noise decides that motion. Not in the thesis.
     """
 
     max_rows: int = 240
@@ -489,26 +489,28 @@ def degeneracy(information: np.ndarray, lever_m: float) -> tuple[float, np.ndarr
     return ratio, v / np.linalg.norm(v)
 
 
-def hold_weakest_translation(xi: np.ndarray, xi_prediction: np.ndarray, information: np.ndarray,
-                             lever_m: float) -> np.ndarray:
-    """``xi`` with the translational part of its least-constrained direction taken from ``xi_prediction``.
+def hold_weak_translations(xi: np.ndarray, xi_prediction: np.ndarray, information: np.ndarray, lever_m: float,
+                           threshold: float) -> np.ndarray:
+    """``xi`` with the translational part of its least-constrained directions taken from ``xi_prediction``.
 
-    In the coordinates of :func:`degeneracy` (rotation as displacement at ``lever_m``) with ``u`` the weakest
-    eigenvector of the information, the twist moves by the translational part of ``u u^T (prediction - xi)``;
-    its rotation stays as estimated.
+    In the coordinates of :func:`degeneracy` (rotation as displacement at ``lever_m``) with ``U`` the eigenvectors
+    of the information whose eigenvalue is below ``threshold`` times the largest (at least the weakest one), the
+    twist moves by the translational part of ``U U^T (prediction - xi)``; its rotation stays as estimated. A
+    corridor of floor and one wall has one such direction, a single plain wall three (two translations held).
 
     Args:
         xi: (6,) estimated velocity (v, w), m/s and rad/s.
         xi_prediction: (6,) predicted velocity, same units.
         information: (6, 6) geometric information (:attr:`LevelSystem.information`).
         lever_m: mean depth, m.
+        threshold: eigenvalue ratio below which a direction is held (``degeneracy_threshold``).
 
     Returns:
         (6,) velocity.
     """
-    _, V, s = _scaled_information(information, lever_m)
-    u = V[:, 0]
-    step = u * (u @ ((xi_prediction - xi) / s))
+    mu, V, s = _scaled_information(information, lever_m)
+    U = V[:, np.r_[True, mu[1:] < threshold * mu[-1]]]
+    step = U @ (U.T @ ((xi_prediction - xi) / s))
     return xi + np.r_[step[:3], np.zeros(3)]
 
 
@@ -697,10 +699,11 @@ class DIFODO:
         return cov + self.config.lost_variance * np.outer(v, v), True, ratio
 
     def _held(self, alignment: Alignment, dt: float) -> np.ndarray:
-        """The increment of a degenerate alignment with its weakest translation from the constant-velocity
-        prediction (:func:`hold_weakest_translation`)."""
+        """The increment of a degenerate alignment with its weak translations from the constant-velocity
+        prediction (:func:`hold_weak_translations`)."""
         xi = se3.log(alignment.T_prev_curr) / dt
-        return se3.exp(hold_weakest_translation(xi, self._xi_prev, *alignment.information) * dt)
+        return se3.exp(hold_weak_translations(xi, self._xi_prev, *alignment.information,
+                                              self.config.degeneracy_threshold) * dt)
 
     def _information_level(self, cameras: tuple[LevelCamera, ...]) -> int:
         """Index of the level whose pixel spacing is closest to ``degeneracy_spacing_deg``."""

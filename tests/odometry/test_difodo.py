@@ -24,7 +24,7 @@ from simnav.odometry.difodo import (
     DIFODO,
     DifodoConfig,
     edge_aware_gradient,
-    hold_weakest_translation,
+    hold_weak_translations,
     level_system,
 )
 from simnav.sensors.readings import RGBDFrame
@@ -284,9 +284,22 @@ def test_a_degenerate_estimate_keeps_the_prediction_along_its_weakest_translatio
     information = sum(np.outer(r, r) for r in rows)
     xi = np.array([0.01, -0.02, 0.05, 0.1, -0.2, 0.3])
     prediction = np.array([0.5, 0.4, 0.6, -1.0, 1.0, 2.0])
-    held = hold_weakest_translation(xi, prediction, information, 3.0)
+    held = hold_weak_translations(xi, prediction, information, 3.0, 0.003)
     np.testing.assert_allclose(held[2], 0.6, atol=1e-9)  # along the corridor: the prediction
     np.testing.assert_allclose(held[[0, 1, 3, 4, 5]], xi[[0, 1, 3, 4, 5]], atol=1e-9)  # the rest as estimated
+
+
+def test_a_degenerate_estimate_facing_one_wall_keeps_both_translations_along_it():
+    # a wall (normal x, optical frame): the slides along y and z and the turn about x change no depth
+    rng = np.random.default_rng(2)
+    normal = np.array([1.0, 0.0, 0.0])
+    rows = [np.r_[normal, np.cross(rng.uniform(-2, 2, 3) + [3.0, 0.0, 0.0], normal)] for _ in range(400)]
+    information = sum(np.outer(r, r) for r in rows)
+    xi = np.array([0.01, -0.02, 0.05, 0.1, -0.2, 0.3])
+    prediction = np.array([0.5, 0.4, 0.6, -1.0, 1.0, 2.0])
+    held = hold_weak_translations(xi, prediction, information, 3.0, 0.003)
+    np.testing.assert_allclose(held[[1, 2]], prediction[[1, 2]], atol=1e-9)  # along the wall: the prediction
+    np.testing.assert_allclose(held[[0, 3, 4, 5]], xi[[0, 3, 4, 5]], atol=1e-9)  # the rest (rotations) as estimated
 
 
 def test_warping_renders_a_plane_exactly():
