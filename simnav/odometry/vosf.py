@@ -284,8 +284,9 @@ class VOSFConfig:
         _require(0 < self.residual_floor <= self.residual_ceiling, "need 0 < residual_floor <= residual_ceiling")
         _require(self.preweight_kz > 0 and self.preweight_ki > 0, "pre-weight constants must be > 0")
         _require(self.min_cluster_pixels >= 6, "min_cluster_pixels must be >= 6")
-        _require(self.lost_variance > 0 and self.degeneracy_threshold >= 0 and self.degeneracy_width_px >= 1,
-                 "bad covariance settings")
+        _require(self.lost_variance > 0, "lost_variance must be > 0")
+        _require(self.degeneracy_threshold >= 0, "degeneracy_threshold must be >= 0")
+        _require(self.degeneracy_width_px >= 1, "degeneracy_width_px must be >= 1")
 
     @property
     def num_clusters(self) -> int:

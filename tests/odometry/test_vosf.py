@@ -491,6 +491,8 @@ def test_config_defaults_are_the_papers_but_the_depth_prior_and_thresholds_and_o
         JointVOSF(not_an_option=1)
     with pytest.raises(ConfigError):
         JointVOSF(static_below=0.9, moving_above=0.1)
+    with pytest.raises(ConfigError, match="degeneracy_width_px must be >= 1"):
+        JointVOSF(degeneracy_width_px=0)
     assert isinstance(JointVOSF().process(frame(CAM0, [], 0.0)), CameraOdometryEstimate)
 
 
