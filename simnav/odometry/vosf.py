@@ -134,6 +134,7 @@ from simnav.errors import ConfigError
 from simnav.geometry import se3
 from simnav.odometry import vosf_kernels as kern
 from simnav.odometry.base import CameraOdometryEstimate
+from simnav.odometry.difodo import hold_weak_translations
 from simnav.sensors.readings import RGBDFrame
 
 log = logging.getLogger(__name__)
@@ -547,7 +548,7 @@ class JointVOSF:
         if not cfg.segmentation:
             seg = Segmentation(np.zeros(k), np.full(k, np.nan), math.nan, math.nan)
             weak = self._weak_directions(robust, cur)
-            return self._result(cur, robust, self._held(T_R, prior, weak, cur), None, seg, T_R, weak)
+            return self._result(cur, robust, self._held(robust, prior, weak, cur), None, seg, T_R, weak)
         # 3. Background segmentation (7)-(15) with the robust odometry.
         seg = self._segment(cur, prev, T_R, use_photo, use_b)
         # 4a. Refined odometry from the static and uncertain clusters (17)-(19), c = 2 mean |r|.
@@ -556,7 +557,7 @@ class JointVOSF:
                               False)
         final = refined if refined is not None else robust
         weak = self._weak_directions(final, cur)
-        T_O = self._held(final.T, prior, weak, cur)  # the predicted translation along unobservable directions
+        T_O = self._held(final, prior, weak, cur)  # the predicted translation along unobservable directions
         # 4b. Rigid motion of every moving or uncertain cluster (17), c = mean |r|.
         T_clusters = np.tile(T_O, (k, 1, 1))
         solved = self._cluster_motions(cur, prev, seg.b > cfg.static_below, T_O, use_photo, T_clusters)
@@ -661,21 +662,20 @@ class JointVOSF:
     def _weak_directions(self, sol: _Solve, cur: _Frame) -> np.ndarray:
         """(6, m) unit twists (left perturbation, rotations scaled to displacements at the mean depth: multiply by
         :func:`_depth_scale` for the twist) along which the solve is degenerate; m = 0 when it is not."""
-        H = sol.H_test if sol.H_test is not None else sol.H
+        H = _test_information(sol)
         S = _depth_scale(cur.mean_depth)
-        evals, evecs = np.linalg.eigh(S @ (0.5 * (H + H.T)) @ S)
+        evals, evecs = np.linalg.eigh(S @ H @ S)
         return evecs[:, ~(evals > self.config.degeneracy_threshold * max(evals[-1], 1e-300))]
 
-    def _held(self, T: np.ndarray, prior: np.ndarray, weak: np.ndarray, cur: _Frame) -> np.ndarray:
-        """``T`` moved onto the prediction ``prior`` by the translational part of the difference along the ``weak``
-        directions (with ``hold_degenerate``)."""
+    def _held(self, sol: _Solve, prior: np.ndarray, weak: np.ndarray, cur: _Frame) -> np.ndarray:
+        """The solve's ``T`` moved onto the prediction ``prior`` by the translational part of the difference along
+        the ``weak`` directions (with ``hold_degenerate``; DIFODO's :func:`hold_weak_translations` on the left twist
+        from ``T`` to the prediction). The rotation stays measured: held too, it erred 2-2.6x as much."""
         if weak.shape[1] == 0 or not self.config.hold_degenerate:
-            return T
-        S = _depth_scale(cur.mean_depth)
-        y = np.linalg.solve(S, se3.log(prior @ se3.inverse(T)))  # left twist from T to the prediction, scaled
-        held = weak @ (weak.T @ y)
-        held[3:] = 0.0  # the rotation stays measured (held too, it erred 2-2.6x as much)
-        return se3.exp(S @ held) @ T
+            return sol.T
+        step = hold_weak_translations(np.zeros(6), se3.log(prior @ se3.inverse(sol.T)), _test_information(sol),
+                                      cur.mean_depth, self.config.degeneracy_threshold)
+        return se3.exp(step) @ sol.T
 
     def _covariance(self, sol: _Solve, weak: np.ndarray, cur: _Frame) -> np.ndarray:
         """Covariance of ``log(T_prev_curr)`` (right perturbation, current optical frame); the ``weak`` directions
@@ -854,6 +854,12 @@ _NO_SCALE = np.zeros(0)  # no per-pixel factor in kern.linearize
 def _depth_scale(z_m: float) -> np.ndarray:
     """(6, 6) ``diag(1, 1, 1, 1/z, 1/z, 1/z)``: twists with rotations as displacements at depth z (m)."""
     return np.diag([1.0, 1.0, 1.0, 1.0 / z_m, 1.0 / z_m, 1.0 / z_m])
+
+
+def _test_information(sol: _Solve) -> np.ndarray:
+    """(6, 6) information the degeneracy test reads: the solve's at the test level, else its last one's."""
+    H = sol.H_test if sol.H_test is not None else sol.H
+    return 0.5 * (H + H.T)
 
 
 def _nearest_level(frame: _Frame, width_px: int) -> int:
