@@ -133,13 +133,31 @@ def make_config(cls: type[C], overrides: dict, owner: str) -> C:
         The config instance.
 
     Raises:
-        ConfigError: an override names no field (the message lists the allowed ones) or a value is invalid.
+        ConfigError: an override names no field (the message lists the allowed ones), has a value of the wrong
+            type (a number field given a string, say) or an invalid value.
     """
-    allowed = sorted(f.name for f in fields(cls))
-    unknown = sorted(set(overrides) - set(allowed))
+    defaults = {f.name: f.default for f in fields(cls)}
+    unknown = sorted(set(overrides) - set(defaults))
     if unknown:
-        raise ConfigError(f"unknown {owner} option(s): {', '.join(unknown)}; allowed: {', '.join(allowed)}")
-    return cls(**overrides)
+        raise ConfigError(f"unknown {owner} option(s): {', '.join(unknown)}; allowed: {', '.join(sorted(defaults))}")
+    return cls(**{name: _typed(value, defaults[name], name, owner) for name, value in overrides.items()})
+
+
+def _typed(value, default, name: str, owner: str):
+    """``value`` for a field whose default is ``default``: a bool for a bool, an integer for an int, a number (as
+    float) for a float; other fields take it as given. Raises :class:`ConfigError` naming the field otherwise."""
+    if isinstance(default, bool):
+        ok = isinstance(value, (bool, np.bool_))
+    elif isinstance(default, int):
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+        value = float(value) if ok else value
+    else:
+        return value
+    if not ok:
+        raise ConfigError(f"{owner} option {name}: expected {type(default).__name__}, got {value!r}")
+    return value
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -243,6 +243,12 @@ def test_unusable_sizes_and_options_raise():
         DIFODO(max_levels=3)
     cfg = DifodoConfig(max_rows=120)
     assert DIFODO(cfg, levels=3).config == DifodoConfig(max_rows=120, levels=3)
+    # values of the wrong type name the option (as from `--set noise_kz=abc`); ints stand for floats
+    with pytest.raises(ConfigError, match="DIFODO option noise_kz: expected float, got 'abc'"):
+        DIFODO(noise_kz="abc")
+    with pytest.raises(ConfigError, match="DIFODO option hold_degenerate: expected bool, got 1"):
+        DIFODO(hold_degenerate=1)
+    assert DIFODO(filter_k1=1).config.filter_k1 == 1.0
 
 
 # ------------------------------------------------------------------------------------------- pyramid, warp
