@@ -498,7 +498,9 @@ class _FlowWriter:
                           "in the current optical frame, NaN = unknown; labels int32 (H, W), -1 = no depth; moving "
                           "bool (H, W)\n# timestamp scene_flow labels moving\n")
         self._clusters = open(root / "clusters.txt", "w", encoding="ascii", newline="\n")  # noqa: SIM115
-        self._clusters.write("# background probability of each cluster (1 - b; < 1/3 moving)\n"
+        self._clusters.write("# background probability of each cluster (1 - b: below 1/3 moving, 1/3-2/3 uncertain; "
+                             "moving/ also marks the uncertain clusters whose own motion is at least "
+                             "uncertain_moving_speed_m_s)\n"
                              "# timestamp p_0 p_1 ... p_K-1\n")
 
     def write(self, stamp_s: float, extra: dict) -> None:

@@ -25,7 +25,7 @@ from simnav.geometry import se3
 from simnav.geometry.camera import R_BODY_OPTICAL
 from simnav.odometry import vosf_kernels
 from simnav.odometry.base import CameraOdometryEstimate
-from simnav.odometry.vosf import JointVOSF, VOSFConfig, segment_background
+from simnav.odometry.vosf import JointVOSF, VOSFConfig, moving_clusters, segment_background
 from simnav.odometry.vosf_kernels import exp_compose
 from simnav.sensors.readings import RGBDFrame
 
@@ -297,8 +297,9 @@ def test_a_slow_walker_2_5_m_ahead_is_segmented_moving_and_kept_out_of_the_odome
     walker, others, worst = run()
     assert min(walker) > 0.75 and worst < 3e-3  # measured: 82-96 %, 1.4 mm
     assert max(others) < 0.06  # measured: 1-4 %
-    # The previous defaults (the thresholds, the depth prior and the re-warping tolerance).
-    walker, _, worst = run(residual_floor=0.007, residual_ceiling=0.015, lambda_depth=0.02, warp_tolerance=1e-4)
+    # The previous defaults (the thresholds, the depth prior, the re-warping tolerance and moving = b > 2/3 only).
+    walker, _, worst = run(residual_floor=0.007, residual_ceiling=0.015, lambda_depth=0.02, warp_tolerance=1e-4,
+                           uncertain_moving_speed_m_s=math.inf)
     assert max(walker) < 0.1 and worst > 0.01  # measured: 0 %, 15 mm
 
 
@@ -315,6 +316,8 @@ def test_scene_flow_of_two_independently_moving_boxes():
     e = vo.process(f)
     flow = e.extra["scene_flow_m"]
     assert np.all(np.isnan(flow[:, 5:15, 5:25])) and np.all(e.extra["labels"][5:15, 5:25] == -1)
+    labels = e.extra["labels"]
+    assert np.array_equal(e.extra["moving_mask"], (labels >= 0) & e.extra["moving_clusters"][np.maximum(labels, 0)])
     for n in (0, 1):
         mask = (f.body_id == n) & np.isfinite(depth)
         truth = true_flow(f, seq.poses[-1], seq.boxes[-2][n].T_world_box, seq.boxes[-1][n].T_world_box, mask)
@@ -478,6 +481,23 @@ def test_compiled_update_matches_the_se3_exponential():
         np.testing.assert_allclose(exp_compose(delta, T), se3.exp(delta) @ T, atol=1e-12)
 
 
+def test_uncertain_clusters_are_labelled_moving_when_their_own_motion_is_fast_enough():
+    # b: static, uncertain x 3, moving, uncertain without a centre; 30 Hz frames, 0.5 m/s = 16.7 mm per frame
+    b = np.array([0.1, 0.5, 0.5, 0.6, 0.9, 0.5])
+    centres = np.array([[0.0, 0.0, 2.0]] * 5 + [[np.nan] * 3])
+    motions = np.tile(np.eye(4), (6, 1, 1))
+    motions[:, 0, 3] = [0.03, 0.01, 0.0, 0.016, 0.0, 0.03]  # along x: 0.9, 0.3, 0, 0.48, 0, 0.9 m/s
+    motions[2] = se3.exp(np.r_[0.0, 0.0, 0.0, 0.0, 0.01, 0.0])  # a turn about the camera: 2 cm at the centre
+    cfg, dt = VOSFConfig(), 1.0 / 30.0
+    assert moving_clusters(b, centres, motions, dt, cfg).tolist() == [False, False, True, False, True, False]
+    assert cfg.uncertain_moving_speed_m_s == 0.5
+    # The paper's labels (b > 2/3 only): with the speed test off, and without a frame interval.
+    paper = [False, False, False, False, True, False]
+    off = VOSFConfig(uncertain_moving_speed_m_s=math.inf)
+    assert moving_clusters(b, centres, motions, dt, off).tolist() == paper
+    assert moving_clusters(b, centres, motions, 0.0, cfg).tolist() == paper
+
+
 def test_config_defaults_are_the_papers_but_the_depth_prior_and_thresholds_and_overrides_are_checked():
     cfg = VOSFConfig()
     assert (cfg.residual_floor, cfg.residual_ceiling) == (0.002, 0.004)  # t_B, t_M: module notes
@@ -493,6 +513,14 @@ def test_config_defaults_are_the_papers_but_the_depth_prior_and_thresholds_and_o
         JointVOSF(static_below=0.9, moving_above=0.1)
     with pytest.raises(ConfigError, match="degeneracy_width_px must be >= 1"):
         JointVOSF(degeneracy_width_px=0)
+    for bad in (-0.1, math.nan):
+        with pytest.raises(ConfigError, match="uncertain_moving_speed_m_s must be >= 0"):
+            JointVOSF(uncertain_moving_speed_m_s=bad)
+    with pytest.raises(ConfigError, match="Joint-VO-SF option uncertain_moving_speed_m_s: expected float, got 'inf'"):
+        JointVOSF(uncertain_moving_speed_m_s="inf")  # e.g. --vosf-set KEY=inf (YAML's infinity is .inf)
+    with pytest.raises(ConfigError, match="option cluster_grid_cols: expected int, got 6.5"):
+        JointVOSF(cluster_grid_cols=6.5)
+    assert JointVOSF(uncertain_moving_speed_m_s=1).config.uncertain_moving_speed_m_s == 1.0
     assert isinstance(JointVOSF().process(frame(CAM0, [], 0.0)), CameraOdometryEstimate)
 
 
