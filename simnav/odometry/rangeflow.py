@@ -145,12 +145,18 @@ def make_config(cls: type[C], overrides: dict, owner: str) -> C:
 
 def _typed(value, default, name: str, owner: str):
     """``value`` for a field whose default is ``default``: a bool for a bool, an integer for an int, a number (as
-    float) for a float; other fields take it as given. Raises :class:`ConfigError` naming the field otherwise."""
+    float) for a float, where a string that reads as one counts too (YAML reads ``1e-3`` and ``inf`` as strings);
+    other fields take it as given. Raises :class:`ConfigError` naming the field otherwise."""
     if isinstance(default, bool):
         ok = isinstance(value, (bool, np.bool_))
     elif isinstance(default, int):
         ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
     elif isinstance(default, float):
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
         value = float(value) if ok else value
     else:

@@ -516,8 +516,11 @@ def test_config_defaults_are_the_papers_but_the_depth_prior_and_thresholds_and_o
     for bad in (-0.1, math.nan):
         with pytest.raises(ConfigError, match="uncertain_moving_speed_m_s must be >= 0"):
             JointVOSF(uncertain_moving_speed_m_s=bad)
-    with pytest.raises(ConfigError, match="Joint-VO-SF option uncertain_moving_speed_m_s: expected float, got 'inf'"):
-        JointVOSF(uncertain_moving_speed_m_s="inf")  # e.g. --vosf-set KEY=inf (YAML's infinity is .inf)
+    with pytest.raises(ConfigError, match="Joint-VO-SF option uncertain_moving_speed_m_s: expected float, got 'x'"):
+        JointVOSF(uncertain_moving_speed_m_s="x")
+    # YAML reads these as strings (--vosf-set KEY=inf, KEY=1e-3)
+    assert JointVOSF(uncertain_moving_speed_m_s="inf").config.uncertain_moving_speed_m_s == math.inf
+    assert JointVOSF(warp_tolerance="1e-3").config.warp_tolerance == 1e-3
     with pytest.raises(ConfigError, match="option cluster_grid_cols: expected int, got 6.5"):
         JointVOSF(cluster_grid_cols=6.5)
     assert JointVOSF(uncertain_moving_speed_m_s=1).config.uncertain_moving_speed_m_s == 1.0
