@@ -42,9 +42,11 @@ median over the clusters of the residuals (7) the segmentation compares with its
     python scripts/bench_rgbd_odometry.py [--seconds 10] [--sequences robot-static robot-people3 ...]
                                           [--methods difodo-qvga vosf open3d-rgbd ...] [--seed 0] [--candidates 4]
                                           [--per-frame DIR] [--vosf-set KEY=VALUE ...]
+                                          [--difodo-set KEY=VALUE ...]
 
 ``--vosf-set`` runs Joint-VO-SF with fields of its config changed, e.g. the public code's segmentation thresholds
-``--vosf-set residual_floor=0.007 residual_ceiling=0.015``.
+``--vosf-set residual_floor=0.007 residual_ceiling=0.015``; ``--difodo-set`` does the same for DIFODO (both
+resolutions).
 ``--per-frame DIR`` writes the error of every frame-to-frame increment per sequence and method
 (``DIR/<sequence>_<method>.csv``: true and estimated speed, translational and rotational error, degeneracy flag),
 to find the frames where a method goes wrong; for Joint-VO-SF on a sequence with people also its segmentation per
@@ -627,13 +629,19 @@ def main() -> None:
                              "(and DIR/<sequence>_vosf_segmentation.csv: Joint-VO-SF's segmentation per frame)")
     parser.add_argument("--vosf-set", nargs="+", default=[], metavar="KEY=VALUE",
                         help="Joint-VO-SF config fields, e.g. residual_floor=0.007 residual_ceiling=0.015")
+    parser.add_argument("--difodo-set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="DIFODO config fields (both resolutions), e.g. hold_degenerate_levels=false")
     args = parser.parse_args()
     try:
         vosf_config = apply_overrides({}, args.vosf_set, "--vosf-set")
         make_frame_odometry("vosf", **vosf_config)
+        difodo_config = apply_overrides({}, args.difodo_set, "--difodo-set")
+        make_frame_odometry("difodo", **difodo_config)
     except ConfigError as err:
         parser.error(str(err))
     METHODS["vosf"] = lambda: _Ours("vosf", **vosf_config)
+    METHODS["difodo-qvga"] = lambda: _Ours("difodo", **{"max_rows": 240, **difodo_config})
+    METHODS["difodo-qqvga"] = lambda: _Ours("difodo", **{"max_rows": 120, **difodo_config})
     console = Console()
     if not console.is_terminal:
         console = Console(width=150)
@@ -690,7 +698,8 @@ def main() -> None:
                 bar.advance(task)
             odo_table.add_section()
     console.print(f"[dim]{args.seconds:g} s per sequence, seed {args.seed}, {args.candidates} candidate seeds with "
-                  f"people; cache {CACHE}/[/]" + (f"\n[dim]Joint-VO-SF with {vosf_config}[/]" if vosf_config else ""))
+                  f"people; cache {CACHE}/[/]" + (f"\n[dim]Joint-VO-SF with {vosf_config}[/]" if vosf_config else "")
+                  + (f"\n[dim]DIFODO with {difodo_config}[/]" if difodo_config else ""))
     console.print(seq_table)
     console.print(odo_table)
     if flow_table.row_count:

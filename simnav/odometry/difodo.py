@@ -97,6 +97,10 @@ class DifodoConfig:
             of its least-constrained directions (those below ``degeneracy_threshold``: e.g. along a corridor of
             floor and one wall, where the depth images do not change with the motion; along a plain wall filling
             the view, two). Without it the coarse levels' noise decides that motion. Not in the thesis.
+        hold_degenerate_levels: also at every level as coarse as the degeneracy level or coarser, once a velocity
+            was measured: a level whose information has exactly one direction below ``degeneracy_threshold`` (a
+            corridor's floor and wall) keeps the prediction's translation along it, so the finer levels warp with
+            that instead of with what the coarse levels' noise made of it. Not in the thesis.
     """
 
     max_rows: int = 240
@@ -116,6 +120,7 @@ class DifodoConfig:
     degeneracy_threshold: float = 0.003
     degeneracy_spacing_deg: float = 2.0
     hold_degenerate: bool = True
+    hold_degenerate_levels: bool = True
 
     def __post_init__(self) -> None:
         require(self.max_rows >= 4, "max_rows must be >= 4")
@@ -514,6 +519,13 @@ def hold_weak_translations(xi: np.ndarray, xi_prediction: np.ndarray, informatio
     return xi + np.r_[step[:3], np.zeros(3)]
 
 
+def _weak_count(information: np.ndarray, lever_m: float, threshold: float) -> int:
+    """How many directions of the information (as :func:`degeneracy` scales it) lie below ``threshold`` times the
+    largest."""
+    mu = _scaled_information(information, lever_m)[0]
+    return int(np.count_nonzero(mu < threshold * mu[-1])) if mu[-1] > 0 else 6
+
+
 def _scaled_information(information: np.ndarray, lever_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eigenvalues (ascending), eigenvectors and the (6,) scale ``s`` of the information of the twist divided by
     ``s`` (rotation times ``lever_m``: the displacement it causes at that distance)."""
@@ -661,6 +673,7 @@ class DIFODO:
         """Coarse-to-fine estimate of the motion from ``ref`` to ``new`` (Algorithm 1); None if no level solved."""
         cfg = self.config
         info_level = self._information_level(new.cameras)
+        hold_levels = cfg.hold_degenerate and cfg.hold_degenerate_levels and bool(np.any(self._xi_prev != 0.0))
         T, solution, information, solved = np.eye(4), None, None, 0
         for step, lv in enumerate(range(len(new.pyramid) - 1, -1, -1)):
             cam, work = new.cameras[lv], self._workspace(new.pyramid[lv].shape)
@@ -669,16 +682,21 @@ class DIFODO:
             # 2. What the previous velocity still predicts after the coarser levels.
             xi_rest = self._xi_prev - se3.log(T) / dt
             # 3. Weighted constraints and their closed-form solution.
-            system = level_system(ref.pyramid[lv], warped, cam, dt, xi_rest, cfg, lv == info_level, work)
+            held = hold_levels and lv >= info_level
+            system = level_system(ref.pyramid[lv], warped, cam, dt, xi_rest, cfg, lv == info_level or held, work)
             sol = solve_level(system)
             if sol is None:
                 continue
             solved, solution = solved + 1, sol
             if lv == info_level:
                 information = (system.information, system.mean_depth_m)
-            # 4. Filter against the prior (3.36, 3.46) and compose on the left of the motion so far.
+            # 4. Filter against the prior (3.36, 3.46), hold a corridor's weak translation at a coarse level, and
+            #    compose on the left of the motion so far.
             k = math.exp(-step)
             xi = velocity_filter(sol, xi_rest, cfg.filter_k1 * k, cfg.filter_k2 * k)
+            if held and _weak_count(system.information, system.mean_depth_m, cfg.degeneracy_threshold) == 1:
+                xi = hold_weak_translations(xi, xi_rest, system.information, system.mean_depth_m,
+                                            cfg.degeneracy_threshold)
             T = se3.exp(xi * dt) @ T
         if solution is None or not np.all(np.isfinite(T)):
             return None

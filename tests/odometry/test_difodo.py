@@ -14,6 +14,7 @@ import pytest
 from simnav.errors import ConfigError
 from simnav.geometry import se3
 from simnav.geometry.camera import R_BODY_OPTICAL, box_room_depth
+from simnav.odometry import difodo as difodo_module
 from simnav.odometry.depth_pyramid import (
     LevelCamera,
     gated_downsample,
@@ -306,6 +307,47 @@ def test_a_degenerate_estimate_facing_one_wall_keeps_both_translations_along_it(
     held = hold_weak_translations(xi, prediction, information, 3.0, 0.003)
     np.testing.assert_allclose(held[[1, 2]], prediction[[1, 2]], atol=1e-9)  # along the wall: the prediction
     np.testing.assert_allclose(held[[0, 3, 4, 5]], xi[[0, 3, 4, 5]], atol=1e-9)  # the rest (rotations) as estimated
+
+
+CORRIDOR = np.array([[-3.0, -1.1, 0.0], [80.0, 1.1, 2.8]])
+"""A 2.2 m wide corridor whose far end lies beyond the camera's range (world frame), m."""
+
+
+def corridor_frame(T_world_base: np.ndarray, stamp_s: float, rng: np.random.Generator) -> RGBDFrame:
+    """A QVGA frame of the corridor, Kinect-like noise, depths beyond 4.5 m invalid."""
+    K = intrinsics(240, 320)
+    depth = box_room_depth(T_world_base @ T_BASE_CAMERA, K, (240, 320), CORRIDOR, np.zeros((0, 2, 3)))[0]
+    depth = (depth + 1.4e-3 * depth**2 * rng.standard_normal(depth.shape)).astype(np.float32)
+    depth[depth > 4.5] = 0.0
+    return RGBDFrame("depth", stamp_s, depth, None, K, T_BASE_CAMERA.copy())
+
+
+@pytest.mark.parametrize("levels", [True, False])
+def test_a_corridor_keeps_the_predicted_translation_along_it_at_the_coarse_levels_too(monkeypatch, levels):
+    # the camera sees the floor and one wall 25 deg off the corridor's axis: one unobservable translation
+    holds = []
+    hold = difodo_module.hold_weak_translations
+    monkeypatch.setattr(difodo_module, "hold_weak_translations", lambda *a: holds.append(1) or hold(*a))
+    rng = np.random.default_rng(0)
+    odo = DIFODO(hold_degenerate_levels=levels)
+    counts, twists = [], []
+    for k in range(5):
+        holds.clear()
+        T = se3.from_rpy(0.0, 0.0, math.radians(25.0), [0.0, -0.3, 0.0]) @ se3.from_rpy(0, 0, 0, [0.02 * k, 0, 0])
+        estimate = odo.process(corridor_frame(T, k * DT_S, rng))
+        counts.append(len(holds))
+        twists.append(estimate.twist_camera)
+        assert k == 0 or estimate.degenerate
+    # the first pair has no prediction (the final hold only); from the second on, with the option, a coarse level
+    # (15 x 20 or 30 x 40, as coarse as the 2-degree level of the degeneracy test) holds it too, then the final hold
+    assert counts[:2] == [0, 1] and counts[2:] == ([2, 2, 2] if levels else [1, 1, 1])
+    np.testing.assert_allclose(twists[2:], twists[1:-1], atol=0.01)  # the prediction kept (0.01 m/s, rad/s)
+    # in the furnished room (no weak direction) no level holds anything
+    holds.clear()
+    odo = DIFODO(hold_degenerate_levels=levels)
+    for k in range(3):
+        odo.process(frame(T_WORLD_BASE0 @ se3.from_rpy(0, 0, 0, [0.02 * k, 0, 0]), k * DT_S))
+    assert not holds
 
 
 def test_warping_renders_a_plane_exactly():
