@@ -157,7 +157,7 @@ class ScenarioRunner(_MissionRunner):
             old = self.nav
             self.nav = ReactiveNavigator3D(old.bands, old.max_v_m_s, old.max_w_rad_s, max_acc_m_s2=old._acc[0],
                                            max_ang_acc_rad_s2=old._acc[1], config=replace(old.config, **nav_options),
-                                           view=old.view)
+                                           view=old.view, free_space_x_m=old.free_space_x_m)
         self.pose.anchor(0.0, self._true_pose())
         self._record_gt()
         self._next_clearance = 0.0

@@ -16,7 +16,7 @@ import numpy as np
 from simnav.geometry import se2
 from simnav.navigation.bands import planar_bands, robot_bands
 from simnav.navigation.navigator import NavCommand, NavigatorConfig, ReactiveNavigator3D
-from simnav.navigation.sensing import SensedObstacles, view_sectors
+from simnav.navigation.sensing import SensedObstacles, camera_free_space, view_sectors
 from simnav.sensors.readings import LaserScan, RGBDFrame
 
 NO_RETURN = 0.999
@@ -48,7 +48,8 @@ class PTGPolicy:
         bands = robot_bands(robot) if nav == "3d" else planar_bands(robot)
         self.navigator = ReactiveNavigator3D(bands, drive.max_v_m_s, drive.max_w_rad_s, max_acc_m_s2=drive.max_acc_m_s2,
                                              max_ang_acc_rad_s2=drive.max_ang_acc_rad_s2, config=self.config,
-                                             view=view_sectors(robot))
+                                             view=view_sectors(robot),
+                                             free_space_x_m=camera_free_space(robot, bands))
         self.max_v_m_s, self.max_w_rad_s = drive.max_v_m_s, drive.max_w_rad_s
         self.control_dt_s = task.config.control_dt_s
         self._lidar = _lidar_geometry(task)

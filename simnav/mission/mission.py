@@ -35,7 +35,7 @@ from simnav.mission.pose import PoseSource
 from simnav.navigation.bands import planar_bands, robot_bands
 from simnav.navigation.memory import MemoryConfig
 from simnav.navigation.navigator import NavigatorConfig, ReactiveNavigator3D
-from simnav.navigation.sensing import SensedObstacles, view_sectors
+from simnav.navigation.sensing import SensedObstacles, camera_free_space, view_sectors
 from simnav.robot.interface import RobotInterface
 from simnav.robot.spec import RobotSpec
 from simnav.sim import SimConfig, Simulator
@@ -296,7 +296,7 @@ class _MissionRunner:
         drive = robot.drive
         self.nav = ReactiveNavigator3D(bands, drive.max_v_m_s, drive.max_w_rad_s, max_acc_m_s2=drive.max_acc_m_s2,
                                        max_ang_acc_rad_s2=drive.max_ang_acc_rad_s2, config=nav_cfg,
-                                       view=view_sectors(robot))
+                                       view=view_sectors(robot), free_space_x_m=camera_free_space(robot, bands))
         self.obstacles = SensedObstacles()
         self.rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 7]))
         self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,

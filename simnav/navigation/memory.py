@@ -6,6 +6,13 @@ odom frame (log-odds, 0 = unknown): cells hit by the band's points gain evidence
 robot beyond the blind range that got no hit lose it, and all evidence decays towards unknown with a time
 constant. Occupied cells near the robot come back as *virtual obstacles* that join the sensed points.
 
+The cone is the depth camera's view, and a camera pitched down sees all of a band's height only over part of it:
+the Giraff's camera (1.12 m up, 30 deg down, 45.6 deg vertical field of view) sees the floor from 0.84 m ahead and
+the top of its pole band (1.02 m) only up to 0.84 m, and nothing above 1.12 m. ``free_x_m`` (per band, the range
+of forward distances where the band's whole height is in view, :func:`simnav.navigation.sensing.camera_free_space`)
+limits the cone band by band, so that a low box the robot has come closer to than the camera sees keeps its
+evidence until it decays instead of being seen free within a few steps.
+
 Points of a level 2D lidar (given apart, *scan points*) are ends of rays in the lidar's plane, so the space before
 them was seen free: a cell whose evidence came only from scan points also loses it when it lies closer to the base
 than the nearest scan point of its band in the same direction (``ray_bin_rad`` wide) by ``ray_margin_m`` (rays are
@@ -86,10 +93,20 @@ class ShortTermMemory:
     Args:
         num_bands: number of height bands.
         config: options.
+        free_x_m: (num_bands, 2) per band, the interval [near, far] of forward distance in the base frame (x, m)
+            inside which the cone's cells count as seen free (beside ``blind_range_m`` < range < ``cone_range_m``
+            and the cone's angle); an empty interval (near > far): never. None: every band everywhere in the cone.
     """
 
-    def __init__(self, num_bands: int, config: MemoryConfig | None = None) -> None:
+    def __init__(self, num_bands: int, config: MemoryConfig | None = None,
+                 free_x_m: np.ndarray | None = None) -> None:
         self.config = config or MemoryConfig()
+        if free_x_m is None:
+            free_x_m = np.tile([-math.inf, math.inf], (num_bands, 1))
+        self._free_x_m = np.array(free_x_m, dtype=np.float64)
+        if self._free_x_m.shape != (num_bands, 2) or np.isnan(self._free_x_m).any():
+            raise ValueError(f"ShortTermMemory: free_x_m must be ({num_bands}, 2) without NaN, "
+                             f"got shape {self._free_x_m.shape}")
         self._n = 2 * int(math.ceil(self.config.half_size_m / self.config.cell_m))
         self._grids = np.zeros((num_bands, self._n, self._n), dtype=np.float32)
         self._keys = np.full((self._n, self._n, 2), _NO_CELL, dtype=np.int64)  # odom cell held by each slot
@@ -147,7 +164,7 @@ class ShortTermMemory:
                               np.ascontiguousarray(T_odom_base, dtype=np.float64),
                               np.ascontiguousarray(xy, dtype=np.float64), np.asarray(ptr, dtype=np.int64),
                               np.ascontiguousarray(scan_xy, dtype=np.float64), np.asarray(scan_ptr, dtype=np.int64),
-                              np.float32(decay), self._params)
+                              np.float32(decay), self._params, self._free_x_m)
 
 
 _NO_CELL = np.iinfo(np.int64).min
@@ -157,8 +174,9 @@ _NO_CELL = np.iinfo(np.int64).min
 @njit(cache=True, error_model="numpy")
 def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, scan_only: np.ndarray, step: int,
                    T: np.ndarray, xy: np.ndarray, ptr: np.ndarray, scan_xy: np.ndarray, scan_ptr: np.ndarray,
-                   decay: np.float32, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One memory update: decay, window follows the robot, hits, free space, virtual obstacles (flat per band)."""
+                   decay: np.float32, params: np.ndarray, free_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One memory update: decay, window follows the robot, hits, free space (the cone, within each band's (B, 2)
+    ``free_x`` forward interval), virtual obstacles (flat per band)."""
     cell, blind, cone_range, cos_cone, emit_range = params[0], params[1], params[2], params[3], params[4]
     hit_l, miss_l, limit, occupied = np.float32(params[5]), np.float32(params[6]), np.float32(params[7]), params[8]
     ray_bin, ray_margin = params[9], params[10]
@@ -207,7 +225,7 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
                 g = np.float32(0.0) if fresh else grids[b, si, sj] * decay
                 if hit_step[b, si, sj] == step:
                     g += hit_l
-                elif in_cone:
+                elif in_cone and free_x[b, 0] <= rx <= free_x[b, 1]:
                     g += miss_l
                 elif scan_only[b, si, sj]:
                     if q < 0:

@@ -257,12 +257,15 @@ class ReactiveNavigator3D:
         view: the horizontal fields of view of the range sensors, base frame (:func:`simnav.navigation.sensing.
             view_sectors` of the robot); with ``config.limit_to_view``, paths are free only as far as they stay
             in view (None: everything counts as seen, as in §6.C).
+        free_space_x_m: (B, 2) per band, the forward distances (base x, m) where the depth camera sees the band's
+            whole height (:func:`simnav.navigation.sensing.camera_free_space` of the robot): the short-term
+            memory counts its cone as seen free only there (None: the whole cone in every band, as MRPT).
     """
 
     def __init__(self, bands: Sequence[Band], max_v_m_s: float, max_w_rad_s: float, *,
                  max_acc_m_s2: float | None = None, max_ang_acc_rad_s2: float | None = None,
                  config: NavigatorConfig | None = None, cache_dir: str | None = None,
-                 view: Sequence[ViewSector] | None = None) -> None:
+                 view: Sequence[ViewSector] | None = None, free_space_x_m: np.ndarray | None = None) -> None:
         from simnav.navigation.holonomic import make_holonomic
         from simnav.navigation.ptgspace import PTGSpace
 
@@ -277,7 +280,8 @@ class ReactiveNavigator3D:
             raise ValueError("NavigatorConfig: every PTG must share the grid geometry (same bands, resolution, ref)")
         options = {"crowded_floor_ratio": cfg.nd_crowded_floor_ratio} if cfg.holonomic.lower() == "nd" else {}
         self._holonomic = [make_holonomic(cfg.holonomic, **options) for _ in self._spaces]  # own hysteresis each
-        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config) if cfg.memory else None
+        self.free_space_x_m = None if free_space_x_m is None else np.array(free_space_x_m, dtype=np.float64)
+        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config, self.free_space_x_m) if cfg.memory else None
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m

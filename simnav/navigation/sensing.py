@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simnav.geometry import se2
+from simnav.navigation.bands import FLOOR_TOLERANCE_M
 from simnav.sensors.readings import LaserScan, PointCloud, Reading, RGBDFrame
 
 
@@ -84,6 +85,74 @@ def view_sectors(robot) -> list[ViewSector]:
         T = sensor.mount.T_base_sensor()
         sectors.append(ViewSector(float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0]), half, reach))
     return sectors
+
+
+FORWARD_CAMERA_TOLERANCE_RAD = math.radians(5.0)
+"""A depth camera whose heading (and roll) is within this of the base's x axis faces forward: it sees the cone of
+the short-term memory."""
+
+
+def camera_free_space(robot, bands, floor_m: float = FLOOR_TOLERANCE_M, step_m: float = 0.001) -> np.ndarray:
+    """Per band, where a forward-facing depth camera sees the band's whole height: the short-term memory's
+    free-space cone counts a cell of that band as seen free only there (:class:`simnav.navigation.memory.
+    ShortTermMemory`).
+
+    A cell at forward distance x (base frame) is in view for a band ``[z_min, z_max]`` when the points at
+    ``max(z_min, floor_m)`` and at ``min(z_max, the robot's top)`` above it both lie inside the camera's vertical
+    field of view and its depth range (the camera's lateral field is the memory's cone angle); between those
+    heights everything is then in view too. A camera pitched down sees low bands only from some distance on and
+    high bands only up to some distance, and nothing above its own height unless it looks up.
+
+    Args:
+        robot: a :class:`simnav.robot.spec.RobotSpec`.
+        bands: its height bands (objects with ``z_min_m`` and ``z_max_m``, m).
+        floor_m: the lowest height that matters (points below are the floor), m.
+        step_m: resolution of the search along x, m.
+
+    Returns:
+        (B, 2) per band the interval [near, far] of forward distance from the base origin, m; an empty one
+        (inf, -inf) where no forward-facing depth camera sees the band whole. With several cameras, the longest.
+    """
+    out = np.tile([math.inf, -math.inf], (len(bands), 1))
+    top_m = max(prism.z_max_m for prism in robot.prisms)
+    for camera in filter(None, map(_forward_camera, robot.sensors)):
+        for b, band in enumerate(bands):
+            near, far = _in_view_m(camera, max(band.z_min_m, floor_m), min(band.z_max_m, top_m), step_m)
+            if far - near > out[b, 1] - out[b, 0]:
+                out[b] = near, far
+    return out
+
+
+def _forward_camera(sensor) -> tuple[float, float, float, float, float, float] | None:
+    """A depth camera facing forward (no yaw or roll beyond FORWARD_CAMERA_TOLERANCE_RAD) as (x m, height m, pitch
+    down rad, half vertical field of view rad, min range m, max range m); None for any other sensor."""
+    from simnav.sensors.presets import resolve_rgbd
+
+    if sensor.type != "rgbd":
+        return None
+    T = sensor.mount.T_base_sensor()
+    axis = T[:3, 0]  # the camera body's x axis is the optical axis
+    yaw, roll = math.atan2(axis[1], axis[0]), math.atan2(T[2, 1], T[2, 2])
+    if max(abs(yaw), abs(roll)) > FORWARD_CAMERA_TOLERANCE_RAD:
+        return None
+    p = resolve_rgbd(sensor)
+    pitch_down = -math.asin(max(-1.0, min(1.0, axis[2])))
+    return float(T[0, 3]), float(T[2, 3]), pitch_down, math.radians(p.fovy_deg) / 2, p.min_range_m, p.max_range_m
+
+
+def _in_view_m(camera: tuple, z_low_m: float, z_high_m: float, step_m: float) -> tuple[float, float]:
+    """The forward distances (base x, m) at which the camera sees both heights (m), as [near, far]; (inf, -inf)
+    where it sees them nowhere."""
+    x_m, height_m, pitch_down, half_fov, min_m, max_m = camera
+    dx = np.arange(step_m, max_m + step_m, step_m)
+    seen = np.ones_like(dx, dtype=bool)
+    for z in (z_low_m, z_high_m):
+        off_axis = pitch_down + np.arctan2(z - height_m, dx)  # angle above the optical axis, rad
+        depth = dx * math.cos(pitch_down) - (z - height_m) * math.sin(pitch_down)
+        seen &= (np.abs(off_axis) <= half_fov) & (depth >= min_m) & (depth <= max_m)
+    if not seen.any():
+        return math.inf, -math.inf
+    return x_m + float(dx[seen][0]), x_m + float(dx[seen][-1])
 
 
 LEVEL_SCAN_TILT_RAD = math.radians(2.0)

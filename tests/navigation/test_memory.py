@@ -95,3 +95,37 @@ def test_a_scan_that_looks_past_a_remembered_cell_clears_it_other_sensors_cells_
         _remembered(memory, 0.05 * k, nothing, person_beside)
     left = [len(_remembered(memory, 0.5 + 0.05 * k, wall_behind_it, nothing)) for k in range(20)]
     assert left[-1] > 0
+
+
+def test_a_low_box_closer_than_the_camera_sees_the_floor_is_remembered_until_it_decays() -> None:
+    # a box 5 cm high, 1 m ahead; the camera sees it while it is 0.81 m away or more, the robot drives on to 0.55 m
+    # and stops: without the band's free-space limit the cone "sees" the blind cell free and forgets the box at once
+    def remembered_while_standing(free_x_m: np.ndarray | None) -> float:
+        memory = ShortTermMemory(1, free_x_m=free_x_m)
+        t, last = 0.0, 0.0
+        for k in range(200):
+            t = 0.05 * k
+            x = min(0.45, 0.02 * k)
+            seen = [np.array([[1.0 - x, 0.0]])] if 1.0 - x >= 0.81 else [np.zeros((0, 2))]
+            (out,) = memory.update(t, se2.from_xy_yaw(x, 0.0, 0.0), seen)
+            if len(out):
+                last = t
+        return last
+
+    assert remembered_while_standing(None) < 1.5
+    # the Giraff's base band is seen whole from 0.885 m on: remembered about 5 s (3 s decay from saturation)
+    assert remembered_while_standing(np.array([[0.885, 4.55]])) > 5.0
+    # a cell inside the band's free range is still seen free
+    memory = ShortTermMemory(1, MemoryConfig(emit_range_m=1.0), free_x_m=np.array([[0.6, 1.0]]))
+    for k in range(2):
+        memory.update(0.05 * k, np.eye(3), [np.array([[0.8, 0.0]])])
+    for k in range(4):
+        (out,) = memory.update(0.1 + 0.05 * k, np.eye(3), [np.zeros((0, 2))])
+    assert len(out) == 0
+
+
+def test_free_ranges_must_match_the_bands() -> None:
+    import pytest
+
+    with pytest.raises(ValueError, match="free_x_m must be"):
+        ShortTermMemory(2, free_x_m=np.zeros((1, 2)))

@@ -489,3 +489,36 @@ def test_nd_crowded_floor_ratio_reaches_the_holonomic_method(cache_dir) -> None:
     assert all(method.config.crowded_floor_ratio == 0.5 for method in crowded._holonomic)
     plain = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, cache_dir=cache_dir, config=CONFIG)
     assert all(method.config.crowded_floor_ratio is None for method in plain._holonomic)
+
+
+def test_a_low_wall_the_camera_no_longer_sees_is_remembered_and_stops_the_giraff(cache_dir) -> None:
+    from simnav.navigation.bands import robot_bands
+    from simnav.navigation.sensing import camera_free_space
+    from simnav.robot import load_robot
+
+    # a wall 5 cm high across the way: only the Giraff's depth camera sees it, and only from 0.86 m ahead on (its
+    # view's lower edge, 52.8 deg down from 1.12 m, 0.05 m ahead of the base origin) within its 57 deg
+    robot = load_robot("giraff")
+    bands, drive_spec = robot_bands(robot), robot.drive
+    near_m = 0.05 + (1.12 - 0.05) / math.tan(math.radians(30.0 + 45.6 / 2))
+    wall_xy = np.column_stack([np.full(301, 2.0), np.linspace(-3.0, 3.0, 301)])
+
+    def closest_gap_m(free_space_x_m) -> float:
+        nav = ReactiveNavigator3D(bands, drive_spec.max_v_m_s, drive_spec.max_w_rad_s,
+                                  max_acc_m_s2=drive_spec.max_acc_m_s2,
+                                  max_ang_acc_rad_s2=drive_spec.max_ang_acc_rad_s2, cache_dir=cache_dir,
+                                  free_space_x_m=free_space_x_m)
+        nav.set_target((4.0, 0.0))
+        T, poses = np.eye(3), []
+        for k in range(80):  # 4 s
+            p = se2.transform_points(se2.inverse(T), wall_xy)
+            seen = (p[:, 0] >= near_m) & (np.abs(np.arctan2(p[:, 1], p[:, 0] - 0.05)) <= math.radians(28.5))
+            cmd = nav.step(0.05 * k, T, np.column_stack([p[seen], np.full(seen.sum(), 0.05)]))
+            T = T @ se2.exp([cmd.v_m_s * 0.05, 0.0, cmd.w_rad_s * 0.05])
+            poses.append(T)
+        return min(2.0 - float(np.max(se2.transform_points(P, bands[0].polygon)[:, 0])) for P in poses)
+
+    # the cone counted as seen free where the camera sees nothing of the floor: the wall is forgotten, and crossed
+    assert closest_gap_m(None) < 0.0
+    # the base band counted as seen free only where the camera sees it whole: the robot stops in front
+    assert closest_gap_m(camera_free_space(robot, bands)) > 0.05
