@@ -232,7 +232,7 @@ def test_static_scene_recovers_the_camera_motion_and_the_mount():
     assert not e1.degenerate and e1.valid_points > 0.9 * H * W
     assert np.all(np.linalg.eigvalsh(e1.covariance) >= -1e-18) and np.all(np.isfinite(e1.covariance))
     # Nothing moves: every cluster is static (b below static_below) and the scene flow is ~0.
-    assert np.all(e1.extra["background_probability"] > 1.0 - vo.config.static_below)  # measured: >= 0.83
+    assert np.all(e1.extra["background_probability"] > 1.0 - vo.config.static_below)  # measured: >= 0.72
     assert not e1.extra["moving_mask"].any()
     flow = e1.extra["scene_flow_m"]
     assert flow.shape == (3, H, W) and flow.dtype == np.float32
@@ -273,8 +273,8 @@ def test_a_person_walking_2_5_m_ahead_is_segmented_moving():
     for e, f in zip(est[1:], seq.frames[1:]):
         person_px = f.body_id == 0
         assert 2.4 < np.median(f.depth_m[person_px]) < 2.55 and person_px.mean() > 0.15
-        assert e.extra["moving_mask"][person_px].mean() > 0.9  # measured: 100 %
-        # clusters shared by the person and the wall behind (measured: 7-8 %; 3-4 % with the previous defaults)
+        assert e.extra["moving_mask"][person_px].mean() > 0.9  # measured: 98-99 %
+        # clusters shared by the person and the wall behind (measured: 4 %; 7-8 % with K-means from the image grid)
         assert e.extra["moving_mask"][~person_px].mean() < 0.1
 
 
@@ -295,12 +295,52 @@ def test_a_slow_walker_2_5_m_ahead_is_segmented_moving_and_kept_out_of_the_odome
         return [m[p].mean() for m, p in masks], [m[~p].mean() for m, p in masks], worst
 
     walker, others, worst = run()
-    assert min(walker) > 0.75 and worst < 3e-3  # measured: 82-96 %, 1.4 mm
-    assert max(others) < 0.06  # measured: 1-4 %
+    assert min(walker) > 0.75 and worst < 3e-3  # measured: 99 %, 0.9 mm (82-96 %, 1.4 mm from the grid)
+    assert max(others) < 0.06  # measured: 3-4 % (1-4 %)
     # The previous defaults (the thresholds, the depth prior, the re-warping tolerance and moving = b > 2/3 only).
     walker, _, worst = run(residual_floor=0.007, residual_ceiling=0.015, lambda_depth=0.02, warp_tolerance=1e-4,
                            uncertain_moving_speed_m_s=math.inf)
-    assert max(walker) < 0.1 and worst > 0.01  # measured: 0 %, 15 mm
+    assert max(walker) < 0.1 and worst > 0.01  # measured: 0 %, 14.6 mm
+
+
+def _label_consistency(est: list, frames: list[RGBDFrame], poses: list[np.ndarray]) -> list[float]:
+    """Per frame after the first: share of its valid pixels whose point, seen in the previous frame, lies in a
+    pixel of the same cluster there (the true camera motion maps it)."""
+    v, u = np.mgrid[0:H, 0:W]
+    shares = []
+    for k in range(1, len(frames)):
+        z = frames[k].depth_m.astype(float).ravel()
+        p = np.stack([(u.ravel() - K[0, 2]) / K[0, 0] * z, (v.ravel() - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        q = se3.transform_points(se3.inverse(poses[k - 1]) @ poses[k], p)
+        uu = np.round(q[:, 0] / q[:, 2] * K[0, 0] + K[0, 2]).astype(int)
+        vv = np.round(q[:, 1] / q[:, 2] * K[1, 1] + K[1, 2]).astype(int)
+        ok = (z > 0) & (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+        shares.append(float(np.mean(est[k].extra["labels"].ravel()[ok] == est[k - 1].extra["labels"][vv[ok], uu[ok]])))
+    return shares
+
+
+def test_kmeans_warm_start_keeps_clusters_in_place_while_the_camera_pans_and_none_is_lost():
+    # 3 deg and 2 cm per frame: in 14 frames 42 deg of the room leave the view and new walls enter it
+    xi = np.array([0.01, 0.0, 0.02, 0.0, math.radians(3.0), 0.0])
+    poses = [CAM0]
+    for _ in range(14):
+        poses.append(poses[-1] @ se3.exp(xi))
+    frames = [frame(P, furniture(), i * DT_S, noise=5e-4, seed=i) for i, P in enumerate(poses)]
+    runs = {}
+    for warm in (True, False):
+        vo = JointVOSF(kmeans_warm_start=warm)
+        est = [vo.process(f) for f in frames]
+        errors = [motion_error(T, se3.inverse(a) @ b)[0] for T, a, b in zip(increments(est), poses, poses[1:])]
+        runs[warm] = _label_consistency(est, frames, poses), est, max(errors[1:])
+    (warm_shares, warm_est, warm_error), (grid_shares, _, grid_error) = runs[True], runs[False]
+    # the same point stays in the same cluster (measured: 77 % of the pixels on average, against 66 % when
+    # K-means starts from the image grid in every frame) ...
+    assert np.mean(warm_shares) > 0.7 and np.mean(warm_shares) > np.mean(grid_shares) + 0.05
+    # ... the clusters whose part of the room left the view are seeded again on what came into it ...
+    for e in warm_est[1:]:
+        assert np.bincount(e.extra["labels"][e.extra["labels"] >= 0], minlength=24).min() > 0
+    # ... and the odometry is as accurate (measured: 1.1 mm either way)
+    assert warm_error < 2e-3 and grid_error < 2e-3
 
 
 def test_scene_flow_of_two_independently_moving_boxes():
