@@ -10,8 +10,9 @@ The cone is the depth camera's view, and a camera pitched down sees all of a ban
 the Giraff's camera (1.12 m up, 30 deg down, 45.6 deg vertical field of view) sees the floor from 0.84 m ahead and
 the top of its pole band (1.02 m) only up to 0.84 m, and nothing above 1.12 m. ``free_x_m`` (per band, the range
 of forward distances where the band's whole height is in view, :func:`simnav.navigation.sensing.camera_free_space`)
-limits the cone band by band, so that a low box the robot has come closer to than the camera sees keeps its
-evidence until it decays instead of being seen free within a few steps.
+limits the cone band by band (``MemoryConfig.whole_band_view``, off by default), so that a low box the robot has
+come closer to than the camera sees keeps its evidence until it decays instead of being seen free within a few
+steps.
 
 Points of a level 2D lidar (given apart, *scan points*) are ends of rays in the lidar's plane, so the space before
 them was seen free: a cell whose evidence came only from scan points also loses it when it lies closer to the base
@@ -51,6 +52,10 @@ class MemoryConfig:
         emit_range_m: occupied cells closer than this to the base origin become virtual obstacles, m.
         ray_bin_rad: angular width of the directions in which the nearest scan point is looked up, rad.
         ray_margin_m: a cell counts as seen free by the scan only this much closer than that point, m.
+        whole_band_view: the cone counts a band's cells as seen free only where the camera sees the band's whole
+            height (the navigator's ``free_space_x_m``); off (the default, as MRPT): everywhere in the cone. On,
+            low obstacles closer than the floor the camera sees are remembered until they decay, and so are the
+            people the camera saw there (README: more turning among people).
     """
 
     cell_m: float = 0.04
@@ -65,6 +70,7 @@ class MemoryConfig:
     emit_range_m: float = 0.7
     ray_bin_rad: float = math.radians(2.0)
     ray_margin_m: float = 0.1
+    whole_band_view: bool = False
 
     def __post_init__(self) -> None:
         checks = [(self.cell_m > 0, "cell_m must be > 0"), (self.half_size_m > self.cell_m, "half_size_m > cell_m"),

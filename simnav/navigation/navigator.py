@@ -258,8 +258,8 @@ class ReactiveNavigator3D:
             view_sectors` of the robot); with ``config.limit_to_view``, paths are free only as far as they stay
             in view (None: everything counts as seen, as in §6.C).
         free_space_x_m: (B, 2) per band, the forward distances (base x, m) where the depth camera sees the band's
-            whole height (:func:`simnav.navigation.sensing.camera_free_space` of the robot): the short-term
-            memory counts its cone as seen free only there (None: the whole cone in every band, as MRPT).
+            whole height (:func:`simnav.navigation.sensing.camera_free_space` of the robot): with
+            ``memory_config.whole_band_view`` the short-term memory counts its cone as seen free only there.
     """
 
     def __init__(self, bands: Sequence[Band], max_v_m_s: float, max_w_rad_s: float, *,
@@ -281,7 +281,11 @@ class ReactiveNavigator3D:
         options = {"crowded_floor_ratio": cfg.nd_crowded_floor_ratio} if cfg.holonomic.lower() == "nd" else {}
         self._holonomic = [make_holonomic(cfg.holonomic, **options) for _ in self._spaces]  # own hysteresis each
         self.free_space_x_m = None if free_space_x_m is None else np.array(free_space_x_m, dtype=np.float64)
-        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config, self.free_space_x_m) if cfg.memory else None
+        if cfg.memory and cfg.memory_config.whole_band_view and self.free_space_x_m is None:
+            raise ValueError("NavigatorConfig: memory_config.whole_band_view needs the navigator's free_space_x_m "
+                             "(camera_free_space(robot, bands))")
+        band_view = self.free_space_x_m if cfg.memory_config.whole_band_view else None
+        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config, band_view) if cfg.memory else None
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m

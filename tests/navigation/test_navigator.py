@@ -493,6 +493,7 @@ def test_nd_crowded_floor_ratio_reaches_the_holonomic_method(cache_dir) -> None:
 
 def test_a_low_wall_the_camera_no_longer_sees_is_remembered_and_stops_the_giraff(cache_dir) -> None:
     from simnav.navigation.bands import robot_bands
+    from simnav.navigation.memory import MemoryConfig
     from simnav.navigation.sensing import camera_free_space
     from simnav.robot import load_robot
 
@@ -503,11 +504,12 @@ def test_a_low_wall_the_camera_no_longer_sees_is_remembered_and_stops_the_giraff
     near_m = 0.05 + (1.12 - 0.05) / math.tan(math.radians(30.0 + 45.6 / 2))
     wall_xy = np.column_stack([np.full(301, 2.0), np.linspace(-3.0, 3.0, 301)])
 
-    def closest_gap_m(free_space_x_m) -> float:
+    def closest_gap_m(whole_band_view: bool) -> float:
+        config = NavigatorConfig(memory_config=MemoryConfig(whole_band_view=whole_band_view))
         nav = ReactiveNavigator3D(bands, drive_spec.max_v_m_s, drive_spec.max_w_rad_s,
                                   max_acc_m_s2=drive_spec.max_acc_m_s2,
                                   max_ang_acc_rad_s2=drive_spec.max_ang_acc_rad_s2, cache_dir=cache_dir,
-                                  free_space_x_m=free_space_x_m)
+                                  config=config, free_space_x_m=camera_free_space(robot, bands))
         nav.set_target((4.0, 0.0))
         T, poses = np.eye(3), []
         for k in range(80):  # 4 s
@@ -519,6 +521,9 @@ def test_a_low_wall_the_camera_no_longer_sees_is_remembered_and_stops_the_giraff
         return min(2.0 - float(np.max(se2.transform_points(P, bands[0].polygon)[:, 0])) for P in poses)
 
     # the cone counted as seen free where the camera sees nothing of the floor: the wall is forgotten, and crossed
-    assert closest_gap_m(None) < 0.0
+    assert closest_gap_m(False) < 0.0
     # the base band counted as seen free only where the camera sees it whole: the robot stops in front
-    assert closest_gap_m(camera_free_space(robot, bands)) > 0.05
+    assert closest_gap_m(True) > 0.05
+    with pytest.raises(ValueError, match="whole_band_view needs"):
+        ReactiveNavigator3D(bands, 0.7, 1.0, cache_dir=cache_dir,
+                            config=NavigatorConfig(memory_config=MemoryConfig(whole_band_view=True)))
