@@ -7,12 +7,12 @@ robot beyond the blind range that got no hit lose it, and all evidence decays to
 constant. Occupied cells near the robot come back as *virtual obstacles* that join the sensed points.
 
 The cone is the depth camera's view, and a camera pitched down sees all of a band's height only over part of it:
-the Giraff's camera (1.12 m up, 30 deg down, 45.6 deg vertical field of view) sees the floor from 0.84 m ahead and
-the top of its pole band (1.02 m) only up to 0.84 m, and nothing above 1.12 m. ``free_x_m`` (per band, the range
-of forward distances where the band's whole height is in view, :func:`simnav.navigation.sensing.camera_free_space`)
-limits the cone band by band (``MemoryConfig.whole_band_view``, off by default), so that a low box the robot has
-come closer to than the camera sees keeps its evidence until it decays instead of being seen free within a few
-steps.
+the Giraff's camera (1.12 m up, 30 deg down, 45.6 deg vertical field of view) sees the floor from 0.885 m ahead of
+the base origin and the top of its pole band (1.02 m) only up to 0.84 m, and nothing above 1.12 m. ``free_x_m``
+(per band, the range of forward distances where the band's whole height is in view,
+:func:`simnav.navigation.sensing.camera_free_space`) limits the cone band by band
+(``MemoryConfig.whole_band_view``, off by default), so that a low box the robot has come closer to than the camera
+sees keeps its evidence until it decays instead of being seen free within a few steps.
 
 Points of a level 2D lidar (given apart, *scan points*) are ends of rays in the lidar's plane, so the space before
 them was seen free: a cell whose evidence came only from scan points also loses it when it lies closer to the base
