@@ -824,11 +824,7 @@ class JointVOSF:
         sparse = np.flatnonzero(counts < cfg.min_cluster_pixels)
         if len(sparse) == 0 or len(pts) <= len(centres):
             return centres, labels
-        kept = np.delete(centres, sparse, axis=0)
-        nearest = np.min(((pts[:, None, :] - kept[None, :, :]) ** 2).sum(axis=2), axis=1)
-        for lab in sparse:
-            centres[lab] = pts[int(np.argmax(nearest))]
-            nearest = np.minimum(nearest, ((pts - centres[lab]) ** 2).sum(axis=1))
+        centres[sparse] = _farthest_points(pts, np.delete(centres, sparse, axis=0), len(sparse))
         return kern.kmeans(pts, centres, cfg.kmeans_max_iterations, cfg.kmeans_tolerance_m)
 
     def _predicted_centres(self, prior: np.ndarray) -> np.ndarray | None:
@@ -838,8 +834,7 @@ class JointVOSF:
         prev = self._prev
         if not self.config.kmeans_warm_start or prev is None or len(prev.centres) != self.config.num_clusters:
             return None
-        T_curr_prev = se3.inverse(prior)
-        return prev.centres @ T_curr_prev[:3, :3].T + T_curr_prev[:3, 3]
+        return se3.transform_points(se3.inverse(prior), prev.centres)
 
     # -- outputs -------------------------------------------------------------------------------------------------
 
@@ -925,13 +920,20 @@ def _seed_centres(lv: _Level, pts: np.ndarray, cols: int, rows: int) -> np.ndarr
             u, v = 0.5 * (ue[c] + ue[c + 1] - 1), 0.5 * (ve[r] + ve[r + 1] - 1)
             centres.append(((u - cx) / fx * z, (v - cy) / fy * z, z))
     out = np.array(centres, dtype=np.float64).reshape(-1, 3)
-    for _ in range(missing):
-        if len(out) == 0:
-            out = pts[:1].copy()
-            continue
-        d = np.min(((pts[:, None, :] - out[None, :, :]) ** 2).sum(axis=2), axis=1)
-        out = np.vstack([out, pts[int(np.argmax(d))]])
-    return np.ascontiguousarray(out)
+    if missing and len(out) == 0:
+        out, missing = pts[:1].copy(), missing - 1
+    return np.ascontiguousarray(np.vstack([out, _farthest_points(pts, out, missing)]))
+
+
+def _farthest_points(pts: np.ndarray, centres: np.ndarray, count: int) -> np.ndarray:
+    """(count, 3) new centres picked one after the other among the (n, 3) points, each the point farthest from the
+    (k >= 1, 3) ``centres`` and the ones picked before it."""
+    nearest = np.min(((pts[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2), axis=1)
+    out = np.empty((count, 3))
+    for i in range(count):
+        out[i] = pts[int(np.argmax(nearest))]
+        nearest = np.minimum(nearest, ((pts - out[i]) ** 2).sum(axis=1))
+    return out
 
 
 _NO_SCALE = np.zeros(0)  # no per-pixel factor in kern.linearize
