@@ -824,7 +824,8 @@ class JointVOSF:
         sparse = np.flatnonzero(counts < cfg.min_cluster_pixels)
         if len(sparse) == 0 or len(pts) <= len(centres):
             return centres, labels
-        centres[sparse] = _farthest_points(pts, np.delete(centres, sparse, axis=0), len(sparse))
+        others = np.ascontiguousarray(np.delete(centres, sparse, axis=0))
+        centres[sparse] = kern.farthest_points(pts, others, len(sparse))
         return kern.kmeans(pts, centres, cfg.kmeans_max_iterations, cfg.kmeans_tolerance_m)
 
     def _predicted_centres(self, prior: np.ndarray) -> np.ndarray | None:
@@ -922,18 +923,7 @@ def _seed_centres(lv: _Level, pts: np.ndarray, cols: int, rows: int) -> np.ndarr
     out = np.array(centres, dtype=np.float64).reshape(-1, 3)
     if missing and len(out) == 0:
         out, missing = pts[:1].copy(), missing - 1
-    return np.ascontiguousarray(np.vstack([out, _farthest_points(pts, out, missing)]))
-
-
-def _farthest_points(pts: np.ndarray, centres: np.ndarray, count: int) -> np.ndarray:
-    """(count, 3) new centres picked one after the other among the (n, 3) points, each the point farthest from the
-    (k >= 1, 3) ``centres`` and the ones picked before it."""
-    nearest = np.min(((pts[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2), axis=1)
-    out = np.empty((count, 3))
-    for i in range(count):
-        out[i] = pts[int(np.argmax(nearest))]
-        nearest = np.minimum(nearest, ((pts - out[i]) ** 2).sum(axis=1))
-    return out
+    return np.ascontiguousarray(np.vstack([out, kern.farthest_points(pts, np.ascontiguousarray(out), missing)]))
 
 
 _NO_SCALE = np.zeros(0)  # no per-pixel factor in kern.linearize

@@ -316,6 +316,41 @@ def kmeans(points: np.ndarray, centres: np.ndarray, max_iterations: int, tol_m: 
 
 
 @njit(cache=True, error_model="numpy")
+def farthest_points(points: np.ndarray, centres: np.ndarray, count: int) -> np.ndarray:
+    """``count`` new K-means centres picked one after the other among the points, each the point farthest from the
+    given centres and the ones picked before it (the first such point on a tie).
+
+    Args:
+        points: (n >= 1, 3) points, m.
+        centres: (k >= 1, 3) centres so far, m.
+        count: how many to pick.
+
+    Returns:
+        (count, 3) picked points, m.
+    """
+    n, k = points.shape[0], centres.shape[0]
+    nearest = np.full(n, np.inf)  # squared distance of every point to its nearest centre so far
+    for i in range(n):
+        for j in range(k):
+            nearest[i] = min(nearest[i], _sq_dist(points, i, centres, j))
+    out = np.empty((count, 3))
+    for c in range(count):
+        best = int(np.argmax(nearest))
+        for a in range(3):
+            out[c, a] = points[best, a]
+        for i in range(n):
+            nearest[i] = min(nearest[i], _sq_dist(points, i, out, c))
+    return out
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _sq_dist(a: np.ndarray, i: int, b: np.ndarray, j: int) -> float:
+    """Squared distance between the 3D rows ``a[i]`` and ``b[j]``, m^2."""
+    dx, dy, dz = a[i, 0] - b[j, 0], a[i, 1] - b[j, 1], a[i, 2] - b[j, 2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, error_model="numpy")
 def _half_gaps(c: np.ndarray, half: np.ndarray) -> None:
     """``half[a]``: half the distance from centre a to the nearest other centre (a point closer than that to its
     centre is nearest to it), m."""

@@ -147,6 +147,23 @@ def test_kmeans_and_labels_are_the_nearest_centres():
     np.testing.assert_array_equal(img, np.where(depth > 0, np.argmin(d2, axis=2), -1))
 
 
+def test_farthest_points_picks_the_point_farthest_from_every_centre_one_after_the_other():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(5000, 3)) * [1.5, 1.0, 0.8] + [0.0, 0.0, 3.0]
+    centres = pts[rng.choice(len(pts), 20, replace=False)].copy()
+    picked = kern.farthest_points(pts, centres, 4)
+    chosen = centres
+    for row in picked:  # the numpy formulation, one pick at a time
+        nearest = ((pts[:, None, :] - chosen[None]) ** 2).sum(axis=2).min(axis=1)
+        np.testing.assert_array_equal(row, pts[np.argmax(nearest)])
+        chosen = np.vstack([chosen, row])
+    # duplicates of the farthest point: the first is taken, and the next pick goes elsewhere
+    twice = np.vstack([pts, pts[:1] + 100.0, pts[:1] + 100.0])
+    picked = kern.farthest_points(twice, centres, 2)
+    np.testing.assert_array_equal(picked[0], pts[0] + 100.0)
+    assert np.linalg.norm(picked[1] - picked[0]) > 1.0
+
+
 def test_cluster_bookkeeping_matches_numpy():
     rng = np.random.default_rng(2)
     labels = rng.integers(-1, 5, size=3000).astype(np.int32)
