@@ -433,11 +433,11 @@ class _MissionRunner:
 
     def _follow(self, route: list[int]) -> None:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
-        xy, skip, near, heading = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
-                                                  self.nav.config.waypoint_allowed_distance_m, self._turnable,
-                                                  self._keep_right_m)
+        xy, skip, near, heading, doorway = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
+                                                           self.nav.config.waypoint_allowed_distance_m,
+                                                           self._turnable, self._keep_right_m)
         self._route_xy = xy
-        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading)
+        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading, give_way=doorway)
 
     def _close_target(self, row, reached: bool) -> None:
         row.reached = reached
@@ -645,7 +645,7 @@ def _write_nav_log(path: Path, rows: list[tuple]) -> None:
 
 def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray, free_m: float,
                     turnable: np.ndarray | None = None, keep_right_m: np.ndarray | None = None,
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
     previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
@@ -670,15 +670,18 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
 
     Returns:
         (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m), (W,) heading to pass them at (rad,
-        NaN: any).
+        NaN: any), (W,) doorways (the narrow nodes themselves: the navigator yields before them while someone
+        stands there).
     """
-    xy, skip, near, heading = [], [], [], []
+    xy, skip, near, heading, doorway = [], [], [], [], []
 
-    def add(p: np.ndarray, may_skip: bool, allowed_m: float, heading_rad: float = math.nan) -> None:
+    def add(p: np.ndarray, may_skip: bool, allowed_m: float, heading_rad: float = math.nan,
+            is_doorway: bool = False) -> None:
         xy.append(p)
         skip.append(may_skip)
         near.append(allowed_m)
         heading.append(heading_rad)
+        doorway.append(is_doorway)
 
     for i, node in enumerate(route):
         p = nodes_xy[node]
@@ -694,11 +697,11 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
         sharp = (turnable is not None and i > 0 and turnable[node] and not turnable[route[i - 1]]
                  and abs(_route_turn_rad(nodes_xy, route, i)) > TURNING_NODE_RAD)
-        add(p, False, DOOR_APPROACH_TOLERANCE_M if sharp else NARROW_NODE_TOLERANCE_M)
+        add(p, False, DOOR_APPROACH_TOLERANCE_M if sharp else NARROW_NODE_TOLERANCE_M, is_doorway=True)
         if i < len(route) - 1:
             add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
     return (np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(skip, dtype=bool), np.array(near),
-            np.array(heading, dtype=np.float64))
+            np.array(heading, dtype=np.float64), np.array(doorway, dtype=bool))
 
 
 def resume_route(route: Sequence[int], closest: int, narrow: np.ndarray,

@@ -24,7 +24,9 @@ stops them all. When every path is blocked the robot backs away slowly for a few
 free, then stops and waits (§6.C.6); it backs only onto the path it drove along. A waypoint to line up at (given a
 heading) whose spot is taken, an open door leaf or someone standing there, counts as reached once the robot is
 close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly now and then to make
-room (someone in a doorway may be waiting to come out past it). A target whose distance has not
+room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands in (a waypoint
+flagged ``give_way``), the robot yields: it backs away to ``give_way_distance_m`` from the doorway, stops there and
+goes on once the doorway has been free for ``give_way_clear_s``. A target whose distance has not
 improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
@@ -47,7 +49,7 @@ from simnav.navigation.holonomic import METHODS, HolonomicInput, NDConfig, index
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 from simnav.navigation.sensing import ViewSector
 
-STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting")
+STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting", "yielding")
 
 
 @dataclass(frozen=True)
@@ -126,6 +128,18 @@ class NavigatorConfig:
             the goal (then it stops there, state ``blocked``, until the goal clears, backing away now and then to
             make room: ``recovery_retry_s``), m.
         blocked_confirm_steps: consecutive steps the goal must look blocked before stopping.
+        give_way: yield at doorways (the waypoints flagged ``give_way`` in :meth:`ReactiveNavigator3D.set_waypoints`):
+            when the robot is within ``give_way_check_m`` of the next such waypoint and, standing on it facing
+            along the route, would overlap a sensed or remembered point for ``blocked_confirm_steps`` steps
+            (someone stands in the doorway, often waiting to come out past the robot), it backs away straight at
+            ``give_way_speed_m_s`` while the space behind is free, until ``give_way_distance_m`` from the doorway,
+            and waits (state ``yielding``) until the doorway has been free for ``give_way_clear_s``. Without it
+            the robot turned back and forth on the spot in front of the doorway, the way in blocked and the
+            corridor behind free, while the people inside waited for it to make room.
+        give_way_check_m: look at the doorway from this close, m.
+        give_way_distance_m: back away until this far from the doorway, m.
+        give_way_speed_m_s: backward speed while yielding, m/s.
+        give_way_clear_s: the doorway must look free this long before the robot goes on, s.
     """
 
     ptgs: tuple[str, ...] = ("C", "alpha", "CS")
@@ -172,6 +186,11 @@ class NavigatorConfig:
     stuck_progress_m: float = 0.2
     blocked_check_m: float = 2.0
     blocked_confirm_steps: int = 3
+    give_way: bool = True
+    give_way_check_m: float = 1.5
+    give_way_distance_m: float = 1.1
+    give_way_speed_m_s: float = 0.12
+    give_way_clear_s: float = 1.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -191,6 +210,9 @@ class NavigatorConfig:
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
+            (self.give_way_check_m >= 0 and self.give_way_distance_m >= 0 and self.give_way_speed_m_s >= 0
+             and self.give_way_clear_s >= 0, "give_way_check_m, give_way_distance_m, give_way_speed_m_s and "
+             "give_way_clear_s must be >= 0"),
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,
@@ -302,7 +324,11 @@ class ReactiveNavigator3D:
         self._waypoints = np.zeros((0, 2))
         self._allow_skip, self._allowed_m = np.zeros(0, dtype=bool), np.zeros(0)
         self._headings = np.zeros(0)
+        self._give_way = np.zeros(0, dtype=bool)
+        self._held_steps, self._yielding = 0, False  # steps the next doorway looked taken; yielding before it
+        self._doorway_clear_since_s: float | None = None
         self._target = 0
+        self._first_unpassed = 0  # the first waypoint not driven past (later ones up to _target were skipped)
         self._aligning = False  # the current waypoint is reached but not yet faced at its heading
         self._last_cmd = (0.0, 0.0)
         self._last_stamp_s: float | None = None
@@ -323,7 +349,8 @@ class ReactiveNavigator3D:
             self._memory.reset()
 
     def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
-                      allowed_distance_m: np.ndarray | None = None, headings_rad: np.ndarray | None = None) -> None:
+                      allowed_distance_m: np.ndarray | None = None, headings_rad: np.ndarray | None = None,
+                      give_way: np.ndarray | None = None) -> None:
         """Follow waypoints in order without stopping; the last one is the goal.
 
         Args:
@@ -336,6 +363,8 @@ class ReactiveNavigator3D:
                 do (the default). Such a waypoint is passed once the robot is within its allowed distance and faces
                 the heading within ``waypoint_heading_tolerance_rad``: it turns in place there (e.g. to line up
                 with a doorway before driving through it).
+            give_way: (W,) waypoints to yield at while someone stands on them (doorways; default none; see
+                ``NavigatorConfig.give_way``).
         """
         wp = np.asarray(waypoints_xy, dtype=np.float64).reshape(-1, 2)
         if len(wp) == 0 or not np.isfinite(wp).all():
@@ -345,11 +374,16 @@ class ReactiveNavigator3D:
                 else np.array(allowed_distance_m, dtype=np.float64))
         heading = (np.full(len(wp), np.nan) if headings_rad is None
                    else np.asarray(headings_rad, dtype=np.float64).copy())
-        if skip.shape != (len(wp),) or near.shape != (len(wp),) or heading.shape != (len(wp),):
-            raise ValueError(f"allow_skip, allowed_distance_m and headings_rad must have shape ({len(wp)},)")
+        yields = np.zeros(len(wp), dtype=bool) if give_way is None else np.asarray(give_way, dtype=bool)
+        if skip.shape != (len(wp),) or near.shape != (len(wp),) or heading.shape != (len(wp),) or \
+                yields.shape != (len(wp),):
+            raise ValueError(f"allow_skip, allowed_distance_m, headings_rad and give_way must have shape "
+                             f"({len(wp)},)")
         near[-1] = self.config.target_allowed_distance_m
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
-        self._headings, self._aligning = heading, False
+        self._first_unpassed, self._progress_target = 0, -1  # waypoints before the first are passed
+        self._headings, self._aligning, self._give_way = heading, False, yields
+        self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = self._goal_blocked_since_s = None
         self._spot_taken_steps = 0
@@ -440,6 +474,10 @@ class ReactiveNavigator3D:
         if self._goal_is_blocked(T_odom_base, near_band_xy):
             return self._wait_for_goal(stamp_s, dt, t0, band_xy, target_index)
         self._goal_blocked_since_s = None
+        # A doorway someone stands in: make room and wait until it frees up
+        doorway = self._held_doorway(stamp_s, T_odom_base, band_xy)
+        if doorway is not None:
+            return self._yield(dt, t0, T_odom_base, band_xy, doorway, target_index)
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
         best, direct = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
         # No path reaches a target far off the heading: turn in place towards it if the turning circle is free
@@ -482,6 +520,7 @@ class ReactiveNavigator3D:
 
     def _pass_waypoint(self) -> None:
         self._target += 1
+        self._first_unpassed = self._target
         self._aligning = False
         self._best_distance, self._best_distance_stamp_s = math.inf, None
 
@@ -495,16 +534,21 @@ class ReactiveNavigator3D:
         return math.copysign(self.max_w_rad_s, error)
 
     def _reachable_target(self, T_odom_base: np.ndarray, limits: list[np.ndarray]) -> int:
-        """The furthest waypoint ahead within the horizon that some PTG reaches collision-free, else the current.
+        """The furthest waypoint within the horizon that some PTG reaches collision-free, else the current.
 
-        Waypoints that may not be skipped stop the search: the robot goes through them."""
+        Waypoints that may not be skipped stop the search: the robot goes through them. A waypoint skipped
+        earlier (passed over for a later one that was reachable then, not driven past) is a candidate again while
+        it lies ahead of the robot: when what made the later one reachable closes (someone steps into the way
+        through a doorway), the robot aims at the waypoint in the doorway again instead of at a target beyond
+        the wall."""
         fixed = np.nonzero(~self._allow_skip[self._target:])[0]
         end = self._target + int(fixed[0]) if len(fixed) else len(self._waypoints) - 1
-        ahead = np.arange(self._target + 1, end + 1)
-        if len(ahead) == 0:
+        ahead = np.arange(self._first_unpassed, end + 1)
+        if len(ahead) <= 1 and self._first_unpassed == self._target:
             return self._target
         xy = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[ahead])
         near = np.hypot(xy[:, 0], xy[:, 1]) < self.config.ref_distance_m
+        near &= (ahead >= self._target) | (xy[:, 0] > 0.0)  # skipped ones only in front of the robot
         if not near.any():
             return self._target
         ahead, xy = ahead[near], xy[near]
@@ -552,6 +596,51 @@ class ReactiveNavigator3D:
             return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "blocked", target_index)
         return self._output(0.0, 0.0, dt, t0, "blocked", target_index)
 
+    def _held_doorway(self, stamp_s: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> int | None:
+        """The index of the doorway the robot yields at now, or None (see ``NavigatorConfig.give_way``): the
+        current waypoint or the one after it, flagged ``give_way``, within ``give_way_check_m``, whose spot (facing
+        from the waypoint before it) has been taken for ``blocked_confirm_steps`` steps, and held until it has
+        been free for ``give_way_clear_s``."""
+        cfg = self.config
+        ahead = [k for k in (self._target, self._target + 1) if k < len(self._waypoints) - 1 and self._give_way[k]]
+        k = ahead[0] if ahead else -1
+        if not cfg.give_way or k < 0 or self._doorway_distance_m(T_odom_base, k) > cfg.give_way_check_m:
+            self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
+            return None
+        spot = self._waypoints[k]
+        before = self._waypoints[k - 1] if k > 0 else T_odom_base[:2, 2]
+        heading = math.atan2(spot[1] - before[1], spot[0] - before[0])
+        taken = self._would_overlap(T_odom_base, spot, heading, band_xy)
+        self._held_steps = self._held_steps + 1 if taken else 0
+        if self._held_steps >= cfg.blocked_confirm_steps:
+            self._yielding, self._doorway_clear_since_s = True, None
+        elif self._yielding and not taken:
+            if self._doorway_clear_since_s is None:
+                self._doorway_clear_since_s = stamp_s
+            self._yielding = stamp_s - self._doorway_clear_since_s < cfg.give_way_clear_s
+        return k if self._yielding else None
+
+    def _doorway_distance_m(self, T_odom_base: np.ndarray, doorway: int) -> float:
+        """Distance from the robot to the nearest flagged waypoint of the doorway that ends at waypoint ``doorway``
+        (itself and the flagged ones up to ``_DOORWAY_RUN`` before it), m."""
+        run = np.arange(max(doorway - _DOORWAY_RUN, 0), doorway + 1)
+        run = run[self._give_way[run]]
+        return float(np.min(np.hypot(*(self._waypoints[run] - T_odom_base[:2, 2]).T)))
+
+    def _yield(self, dt: float, t0: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray], doorway: int,
+               target_index: int) -> NavCommand:
+        """Before a held doorway: back away straight while facing it, nearer than ``give_way_distance_m`` to it or
+        to a flagged waypoint just before it (a doorway can be a run of narrow waypoints: the robot standing in the
+        first while someone holds the next one still blocks their way out) and the space behind is free; else
+        stop."""
+        cfg = self.config
+        spot_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[doorway][None])[0]
+        self._turning, self._blocked_since_s = False, None
+        if float(spot_base[0]) > 0.0 and self._doorway_distance_m(T_odom_base, doorway) < cfg.give_way_distance_m \
+                and self._behind_is_free(band_xy):
+            return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
+        return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
+
     def _lineup_spot_taken(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> bool:
         """Whether the current waypoint (not the goal) has a heading, lies within ``taken_waypoint_pass_m`` and the
         robot standing on it at that heading would overlap an obstacle point, for ``blocked_confirm_steps`` steps
@@ -578,9 +667,9 @@ class ReactiveNavigator3D:
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
         """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""
-        if self._target != self._progress_target:
+        if self._target > self._progress_target:  # not back to a skipped waypoint: that would reset the timer
             self._progress_target, self._best_distance_stamp_s = self._target, None
-        d = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
+        d = float(np.linalg.norm(self._waypoints[self._progress_target] - T_odom_base[:2, 2]))
         if self._best_distance_stamp_s is None or d < self._best_distance - self.config.stuck_progress_m:
             self._best_distance, self._best_distance_stamp_s = d, stamp_s
 
@@ -849,5 +938,7 @@ def _target_path_speed(lim: np.ndarray, k_t: int) -> float:
     return min(1.0, risk / _ND.risk_evaluation_distance)
 
 
+_DOORWAY_RUN = 3  # flagged waypoints this many before the held one belong to the same doorway (route_waypoints
+# puts a leave waypoint and an approach waypoint between two narrow nodes in a row)
 _TRAIL_STEP_M = 0.02
 _TRAIL_STEP_RAD = math.radians(3)

@@ -188,7 +188,7 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
 
     nodes = np.array([[0.0, 0.0], [3.0, -2.0], [3.0, 0.0], [3.0, 2.0], [3.0, 2.5]])  # node 2: a doorway
     narrow = np.array([False, False, True, False, False])
-    xy, skip, near, heading = route_waypoints(nodes, [0, 1, 2, 3, 4], narrow, 1.0)
+    xy, skip, near, heading, doorway = route_waypoints(nodes, [0, 1, 2, 3, 4], narrow, 1.0)
     np.testing.assert_allclose(xy, [[0, 0], [3, -2], [3, -DOOR_APPROACH_M], [3, 0], [3, DOOR_APPROACH_M], [3, 2],
                                     [3, 2.5]])
     assert skip.tolist() == [True, True, False, False, True, True, True]
@@ -198,11 +198,12 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     # the approach waypoint is passed facing the doorway (+y); the others at any heading
     np.testing.assert_allclose(heading[2], np.pi / 2)
     assert np.isnan(np.delete(heading, 2)).all()
+    assert doorway.tolist() == [False, False, False, True, False, False, False]  # the navigator yields there
     # at most half way to a close neighbour; a route starting in the doorway has no approach before it
-    xy, skip, _, heading = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
+    xy, skip, _, heading, _ = route_waypoints(nodes, [2, 3, 4], narrow, 1.0)
     np.testing.assert_allclose(xy, [[3, 0], [3, DOOR_APPROACH_M], [3, 2], [3, 2.5]])
     assert np.isnan(heading).all()
-    xy, _, _, heading = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
+    xy, _, _, heading, _ = route_waypoints(nodes, [4, 3, 2], np.array([False, False, False, True, False]), 1.0)
     np.testing.assert_allclose(xy, [[3, 2.5], [3, 2.25], [3, 2], [3, 2 - DOOR_APPROACH_M], [3, 0]])
     np.testing.assert_allclose(heading[1], -np.pi / 2)
 
@@ -216,7 +217,7 @@ def test_the_hallway_outside_a_doorway_is_reached_close_by_where_the_route_turns
     turnable = np.array([True, False, True, True, True])  # no room to turn in place in the doorway
 
     def tolerance_at(route, xy_m, turnable=turnable):
-        xy, _, near, _ = route_waypoints(nodes, route, narrow, 1.0, turnable)
+        xy, _, near, _, _ = route_waypoints(nodes, route, narrow, 1.0, turnable)
         (i,) = np.flatnonzero(np.all(np.isclose(xy, xy_m), axis=1))
         return near[i]
 

@@ -345,6 +345,93 @@ def test_a_waypoint_to_line_up_at_whose_spot_is_taken_is_lined_up_at_from_close_
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
 
+def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
+    """Points on the outline of someone standing at (x, y), at the base band's height."""
+    a = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    return np.column_stack([x + radius * np.cos(a), y + radius * np.sin(a), np.full(24, 0.3)])
+
+
+def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float, seconds: float = 40.0):
+    """The robot at (2, start_y) facing +y drives through a 1 m doorway at (2, 1.1) (in a wall along y = 1.1) to
+    (2, 2.5), the doorway flagged to yield at; someone stands in it, at (2, 1.3), until ``leaves_s``. Returns the
+    distances to the doorway and the states while they stand there, and the last command."""
+    walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
+                      give_way=np.array([False, True, False]))
+    T, dt, distances, states = se2.from_xy_yaw(2.0, start_y, np.pi / 2), 0.05, [], []
+    for k in range(int(seconds / dt)):
+        there = k * dt < leaves_s
+        world = np.vstack([walls, _person(2.0, 1.3)]) if there else walls
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
+        cmd = nav.step(k * dt, T, pts)
+        if there:
+            distances.append(float(np.linalg.norm(T[:2, 2] - [2.0, 1.1])))
+            states.append(cmd.state)
+        if cmd.state == "reached":
+            break
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    return np.array(distances), states, cmd
+
+
+def test_before_a_doorway_someone_stands_in_the_robot_makes_room_then_goes_through(cache_dir) -> None:
+    # from 0.5 m before the doorway (the approach waypoint): it backs away to give_way_distance_m and waits
+    nav = make_nav(cache_dir)
+    distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
+    assert cmd.state == "reached"
+    assert "yielding" in states and "turning" not in states
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.105 m
+    # without yielding it stays at the doorway, pressing towards the person
+    nav = make_nav(cache_dir, give_way=False)
+    distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
+    assert cmd.state == "reached" and "yielding" not in states
+    assert distances.max() < 0.6  # measured: 0.50 m throughout
+
+
+def test_a_doorway_someone_stands_in_is_waited_for_from_where_the_robot_sees_it(cache_dir) -> None:
+    # from 1.6 m away the robot drives up to give_way_check_m and waits there: no closer while it is taken
+    nav = make_nav(cache_dir)
+    distances, states, cmd = _through_a_doorway(nav, -0.5, leaves_s=10.0)
+    assert cmd.state == "reached"
+    assert states[-1] == "yielding"
+    assert distances.min() >= nav.config.give_way_distance_m  # measured: 1.29 m (it stops from 1.5 m)
+
+
+def test_before_a_doorway_of_two_narrow_nodes_the_robot_makes_room_from_the_first(cache_dir) -> None:
+    # narrow nodes at (2, 1.1) (the wall's doorway) and (2, 1.85) just inside; someone stands on the second: the
+    # robot backs away until 1.1 m from the first, out of the way of whoever comes out
+    walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
+    world = np.vstack([walls, _person(2.0, 2.0)])
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 1.48], [2.0, 1.85], [2.0, 3.0]]),
+                      allow_skip=np.array([False, False, True, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3, 0.3, 0.3]),
+                      headings_rad=np.array([np.pi / 2, np.nan, np.nan, np.nan, np.nan]),
+                      give_way=np.array([False, True, False, True, False]))
+    T, dt = se2.from_xy_yaw(2.0, 0.6, np.pi / 2), 0.05
+    for k in range(300):
+        cmd = nav.step(k * dt, T, np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]]))
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    assert cmd.state == "yielding"
+    assert 1.1 - 0.02 <= 1.1 - T[1, 2] < 1.2  # measured: 1.10 m from the first (1.85 m from the second)
+
+
+def test_a_skipped_waypoint_is_aimed_at_again_when_the_later_one_is_no_longer_reachable(cache_dir) -> None:
+    # the goal (2.5, 1.5) is reachable from the start, so the waypoint (1.5, 0) is skipped; then a wall across
+    # x = 2.1 closes the way to the goal, not to the waypoint: the robot aims at the waypoint again
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[1.5, 0.0], [2.5, 1.5]]))
+    assert nav.step(0.0, np.eye(3), np.zeros((0, 3))).target_index == 1
+    closed = wall(2.1, -3.0, 2.1, 3.0)
+    assert nav.step(0.05, np.eye(3), closed).target_index == 0
+    # behind the robot it is not: turned to face -x, the goal stays the target
+    nav.set_waypoints(np.array([[1.5, 0.0], [2.5, 1.5]]))
+    nav.step(0.1, np.eye(3), np.zeros((0, 3)))
+    T = se2.from_xy_yaw(1.8, 0.0, np.pi)
+    assert nav.step(0.15, T, np.column_stack([se2.transform_points(se2.inverse(T), closed[:, :2]),
+                                              closed[:, 2]])).target_index == 1
+
+
 def test_a_waypoint_heading_is_given_up_without_room_to_turn(cache_dir) -> None:
     nav = make_nav(cache_dir)
     nav.set_waypoints(np.array([[0.0, 0.0], [3.0, 0.0]]), headings_rad=np.array([np.pi, np.nan]))
