@@ -121,8 +121,9 @@ class NavigatorConfig:
             the target, they keep the lead for a while instead of the two taking turns for ever (unless no path
             moves at all: then turning beats waiting), s.
         turn_in_place_retry_m: ... or once it has moved this far, m.
-        stuck_timeout_s: the navigator reports ``stuck`` when the distance to the waypoint it aims at has not
-            improved by ``stuck_progress_m`` for this long (passing a waypoint is progress), s.
+        stuck_timeout_s: the navigator reports ``stuck`` when the distance to the furthest waypoint it has aimed at
+            (a skipped waypoint aimed at again does not count) has not improved by ``stuck_progress_m`` for this
+            long (passing a waypoint is progress), s.
         stuck_progress_m: progress that resets the stuck timer, m.
         blocked_check_m: within this distance of the goal, check whether the robot would collide if it stood on
             the goal (then it stops there, state ``blocked``, until the goal clears, backing away now and then to
@@ -666,7 +667,8 @@ class ReactiveNavigator3D:
                    for band, pts in zip(self.bands, band_xy, strict=True))
 
     def _update_stuck(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
-        """Progress towards the waypoint being aimed at (a route may lead away from the goal for a while)."""
+        """Progress towards the furthest waypoint aimed at so far (a route may lead away from the goal for a while;
+        aiming back at a skipped waypoint does not restart the timer)."""
         if self._target > self._progress_target:  # not back to a skipped waypoint: that would reset the timer
             self._progress_target, self._best_distance_stamp_s = self._target, None
         d = float(np.linalg.norm(self._waypoints[self._progress_target] - T_odom_base[:2, 2]))
