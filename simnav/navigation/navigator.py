@@ -211,9 +211,8 @@ class NavigatorConfig:
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
-            (self.give_way_check_m >= 0 and self.give_way_distance_m >= 0 and self.give_way_speed_m_s >= 0
-             and self.give_way_clear_s >= 0, "give_way_check_m, give_way_distance_m, give_way_speed_m_s and "
-             "give_way_clear_s must be >= 0"),
+            *[(getattr(self, name) >= 0, f"{name} must be >= 0, got {getattr(self, name)}")
+              for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s")],
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,

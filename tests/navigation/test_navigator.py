@@ -470,11 +470,15 @@ def test_stuck_is_reported_after_the_timeout(cache_dir) -> None:
 def test_bad_configuration_and_waypoints_are_rejected(cache_dir) -> None:
     with pytest.raises(ValueError, match="secure_distance"):
         NavigatorConfig(secure_distance_m=5.0)
+    with pytest.raises(ValueError, match="give_way_distance_m must be >= 0, got -1"):
+        NavigatorConfig(give_way_distance_m=-1.0)
     nav = make_nav(cache_dir)
     with pytest.raises(ValueError, match="waypoints"):
         nav.set_waypoints(np.array([[np.nan, 0.0]]))
     with pytest.raises(ValueError, match="headings_rad"):
         nav.set_waypoints(np.array([[1.0, 0.0]]), headings_rad=np.zeros(2))
+    with pytest.raises(ValueError, match="give_way"):
+        nav.set_waypoints(np.array([[1.0, 0.0]]), give_way=np.zeros(3, dtype=bool))
 
 
 
