@@ -598,7 +598,8 @@ class ReactiveNavigator3D:
 
     def _held_doorway(self, stamp_s: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> int | None:
         """The index of the doorway the robot yields at now, or None (see ``NavigatorConfig.give_way``): the
-        current waypoint or the one after it, flagged ``give_way``, within ``give_way_check_m``, whose spot (facing
+        current waypoint or the one after it, flagged ``give_way``, its doorway within ``give_way_check_m``
+        (:meth:`_doorway_distance_m`), whose spot (facing
         from the waypoint before it) has been taken for ``blocked_confirm_steps`` steps, and held until it has
         been free for ``give_way_clear_s``."""
         cfg = self.config
