@@ -11,7 +11,9 @@ moment. Anybody who comes less than 0.3 m closer to their next waypoint in 10 s 
 roadmap node in sight to a new goal, preferring one whose route turns back (two people or a person and a robot
 facing each other in a hallway too narrow to pass otherwise wait for ever); so does anybody blocked by a robot
 again soon after stepping aside for it. People keep ``circle_clearance_m`` of personal space from a robot (the
-round obstacles).
+round obstacles). A waypoint counts as passed only with the next one in sight past the walls and door leaves, and
+someone slow whose waypoint is out of sight heads back to the one before it (else a person pushed back into a
+room after passing its doorway's node walked for the corridor straight into the jamb or the open leaf).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 from simnav.agents.kernels import (
     crowd_advance,
+    crowd_back_in_sight,
     crowd_move,
     crowd_plan_events,
     grid_lists,
@@ -411,8 +414,10 @@ class Crowd:
 
     def _update_plans(self, dt_s: float, circles: np.ndarray, walls: tuple[np.ndarray, np.ndarray]) -> None:
         """Pauses run down and new goals; waypoints reached, counting a robot (in (C, 3) ``circles``) standing on
-        the target as there, and with the waypoint after them in sight past ``walls`` (start, delta)."""
+        the target as there, and with the waypoint after them in sight past ``walls`` (start, delta); someone
+        slow whose target is out of sight heads back to the waypoint before it."""
         plans = (self._pos, self._target, self._path_xy, self._wp, self._last_wp)
+        crowd_back_in_sight(self._arrived, self._vel, plans, walls, BLOCKED_SPEED_M_S)
         due, events = crowd_plan_events(self._pause_s, self._arrived, dt_s, plans, circles, self._limits, walls)
         if len(due):
             for k in due:

@@ -718,6 +718,26 @@ def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, pla
 
 
 @njit(cache=True, error_model="numpy")
+def crowd_back_in_sight(arrived: np.ndarray, vel: np.ndarray, plans: tuple, walls: tuple, slow_m_s: float) -> None:
+    """Send the walking pedestrians slower than ``slow_m_s`` (their (N, 2) ``vel``, m/s) whose target is out of
+    sight past ``walls`` (start (M, 2), delta (M, 2), metres) back to the waypoint before it when that one is in
+    sight (in place; ``plans`` as :func:`crowd_advance`'s): pushed back past a door jamb or an open leaf after
+    passing the doorway's node (stepping back in a face-off), a person headed for the next node straight into
+    the jamb or leaf and stayed pressed there."""
+    pos, target, paths, wp, last_wp = plans
+    start, delta = walls
+    for i in range(pos.shape[0]):
+        if arrived[i] or wp[i] == 0 or vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1] >= slow_m_s * slow_m_s:
+            continue
+        if in_sight(pos[i, 0], pos[i, 1], target[i, 0], target[i, 1], start, delta):
+            continue
+        prev = paths[i, wp[i] - 1]
+        if in_sight(pos[i, 0], pos[i, 1], prev[0], prev[1], start, delta):
+            wp[i] -= 1
+            target[i, 0], target[i, 1] = prev[0], prev[1]
+
+
+@njit(cache=True, error_model="numpy")
 def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
                   limits: tuple[float, float, float, float], walls: tuple) -> np.ndarray:
     """Move the walking pedestrians within reach of their targets on along their paths (in place).

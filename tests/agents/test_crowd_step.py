@@ -68,6 +68,13 @@ class ReferenceCrowd(Crowd):
         sight = self._walls
         if dynamic_segments is not None and len(dynamic_segments):  # door leaves hide the nodes behind them too
             sight = self._walls.extended(np.asarray(dynamic_segments, dtype=float).reshape(-1, 2, 2))
+        # someone slow whose target is out of sight heads back to the waypoint before it, when that one is in sight
+        slow = np.linalg.norm(self._vel, axis=1) < crowd_module.BLOCKED_SPEED_M_S
+        for k in np.nonzero(~self._arrived & (self._wp > 0) & slow)[0]:
+            before = self._path_xy[k, self._wp[k] - 1]
+            if not _visible(self._pos[k], self._target[k], sight) and _visible(self._pos[k], before, sight):
+                self._wp[k] -= 1
+                self._set_target(int(k))
         self._pause_s[self._arrived] -= dt_s
         for k in np.nonzero(self._arrived & (self._pause_s <= 0.0))[0]:
             self._plan(int(k), int(self._goals[k]))
@@ -284,3 +291,19 @@ def test_a_waypoint_is_passed_only_with_the_next_one_in_sight_past_the_door_leav
     stepped._set_target(0)
     stepped.step(0.01, dynamic_segments=leaves if leaf else None)
     assert stepped._wp[0] == expected_wp
+
+
+@pytest.mark.parametrize(("speed_m_s", "expected_wp"), [(0.0, 1), (1.0, 2)])
+def test_someone_slow_whose_waypoint_is_out_of_sight_heads_back_to_the_one_before(speed_m_s: float,
+                                                                                  expected_wp: int) -> None:
+    # pushed back into the room past the doorway's node (0, 0.6), heading for the corridor node (-3, 0) behind
+    # the wall: standing still, the person heads for the doorway's node again; still walking, not yet
+    path = np.array([[0.0, 2.0], [0.0, 0.6], [-3.0, 0.0], [-6.0, 0.0]])
+    walls = np.array([[[-4.0, 0.6], [-0.45, 0.6]], [[0.45, 0.6], [2.0, 0.6]]])
+    crowd = Crowd(RoadmapGraph(path, [(0, 1), (1, 2), (2, 3)]), walls, 1, np.random.default_rng(0))
+    crowd._pos, crowd._vel = np.array([[0.1, 1.2]]), np.array([[0.0, speed_m_s]])
+    crowd._path_xy[0, :4] = path
+    crowd._wp[0], crowd._last_wp[0], crowd._arrived[0] = 2, 3, False
+    crowd._set_target(0)
+    crowd._update_plans(0.1, np.zeros((0, 3)), (crowd._walls.start, crowd._walls.delta))
+    assert crowd._wp[0] == expected_wp
