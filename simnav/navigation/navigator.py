@@ -136,7 +136,8 @@ class NavigatorConfig:
             when the robot is within ``give_way_check_m`` of the next such waypoint and, standing on it facing
             along the route, would overlap a sensed or remembered point for ``blocked_confirm_steps`` steps
             (someone stands in the doorway, often waiting to come out past the robot), it backs away straight at
-            ``give_way_speed_m_s`` while the space behind is free, until ``give_way_distance_m`` from the doorway,
+            ``give_way_speed_m_s`` while the space behind is free and on its trail (``recovery_trail_s``), until
+            ``give_way_distance_m`` from the doorway,
             and waits (state ``yielding``) until the doorway has been free for ``give_way_clear_s``. Without it
             the robot turned back and forth on the spot in front of the doorway, the way in blocked and the
             corridor behind free, while the people inside waited for it to make room.
@@ -658,14 +659,17 @@ class ReactiveNavigator3D:
                doorway: int, target_index: int) -> NavCommand:
         """Before a held doorway: back away straight while facing it, nearer than ``give_way_distance_m`` to it or
         to a flagged waypoint just before it (a doorway can be a run of narrow waypoints: the robot standing in the
-        first while someone holds the next one still blocks their way out) and the space behind is free; else
-        stop. After ``give_way_patience_s`` of yielding, back away to ``give_way_far_m`` instead."""
+        first while someone holds the next one still blocks their way out), the space behind free and where the
+        robot drove facing the same way (as in recovery: leaving a room it had turned on the spot in, it backed into
+        the open door leaf behind it, which its lidar did not see); else stop. After ``give_way_patience_s`` of
+        yielding, back away to ``give_way_far_m`` instead."""
         cfg = self.config
         self._turning, self._blocked_since_s = False, None
         patient = self._yield_since_s is not None and stamp_s - self._yield_since_s < cfg.give_way_patience_s
         room_m = cfg.give_way_distance_m if patient else max(cfg.give_way_distance_m, cfg.give_way_far_m)
         near = self._doorway_distance_m(T_odom_base, doorway) < room_m
-        if near and self._lies_ahead(T_odom_base, self._waypoints[doorway]) and self._behind_is_free(band_xy):
+        if near and self._lies_ahead(T_odom_base, self._waypoints[doorway]) and self._behind_is_free(band_xy) \
+                and self._behind_is_trail(T_odom_base):
             return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
         return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
 
