@@ -56,18 +56,24 @@ def offsets_m(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"expected comma-separated offsets in metres, got {text!r}") from None
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--x", type=float, default=10.26, help="where along the corridor the robot stands, m")
-    parser.add_argument("--offsets", type=offsets_m, default="0,0.29,-0.29,0.45,-0.45",
-                        help="offsets from the centreline (y), m")
+def office_crowd_run(parser: argparse.ArgumentParser) -> tuple[argparse.Namespace, Simulator, np.ndarray]:
+    """Parse ``parser``'s arguments with ``--seeds`` and ``--seconds`` added (checked), and set up the office with
+    the Giraff: the arguments, the simulator (close it) and the (W, 2, 2) static obstacle segments (metres)."""
     parser.add_argument("--seeds", type=int, choices=range(1, 1001), metavar="1..1000", default=4)
     parser.add_argument("--seconds", type=float, default=300.0, help="simulated time per seed, s")
     args = parser.parse_args()
     if not args.seconds > 0:
         parser.error(f"--seconds must be > 0, got {args.seconds}")
     sim = Simulator(load_world("office"), load_robot("giraff"), SimConfig(), seed=0)
-    walls = obstacle_segments(sim.world)
+    return args, sim, obstacle_segments(sim.world)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--x", type=float, default=10.26, help="where along the corridor the robot stands, m")
+    parser.add_argument("--offsets", type=offsets_m, default="0,0.29,-0.29,0.45,-0.45",
+                        help="offsets from the centreline (y), m")
+    args, sim, walls = office_crowd_run(parser)
     doors = sim.doors.segments_xy() if sim.doors else None
     table = Table(title=f"people slowed near a robot standing at x = {args.x} m in the office corridor "
                         f"({args.seeds} seeds x {args.seconds:.0f} s, {sim.pedestrian_count} people)")

@@ -19,13 +19,12 @@ from rich.console import Console
 from rich.table import Table
 
 import simnav  # noqa: F401  (sets up the environment like every simnav entry point)
+from crowd_around_robot import office_crowd_run
 from simnav.agents import Crowd
 from simnav.agents.doors import DoorLeaves
 from simnav.mission.mission import NARROW_NODE_CLEARANCE_M
-from simnav.robot import load_robot
-from simnav.sim import SimConfig, Simulator
-from simnav.world import load_world
-from simnav.world.footprint import clearance_m, obstacle_segments
+from simnav.sim import Simulator
+from simnav.world.footprint import clearance_m
 
 NEAR_M = 1.0
 SLOW_M_S = 0.2
@@ -58,14 +57,7 @@ def held_in_doorways(sim: Simulator, walls: np.ndarray, doorways_xy: np.ndarray,
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, choices=range(1, 1001), metavar="1..1000", default=4)
-    parser.add_argument("--seconds", type=float, default=300.0, help="simulated time per seed, s")
-    args = parser.parse_args()
-    if not args.seconds > 0:
-        parser.error(f"--seconds must be > 0, got {args.seconds}")
-    sim = Simulator(load_world("office"), load_robot("giraff"), SimConfig(), seed=0)
-    walls = obstacle_segments(sim.world)
+    args, sim, walls = office_crowd_run(argparse.ArgumentParser(description=__doc__.splitlines()[0]))
     nodes = sim.roadmap.nodes_xy
     doorways = nodes[clearance_m(sim.world, nodes) < NARROW_NODE_CLEARANCE_M]
     table = Table(title=f"people held up in the office's {len(doorways)} doorway nodes, no robot "
