@@ -25,10 +25,9 @@ free, then stops and waits (§6.C.6); it backs only onto the path it drove along
 heading) whose spot is taken, an open door leaf or someone standing there, counts as reached once the robot is
 close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly now and then to make
 room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands in (a waypoint
-flagged ``give_way``), the robot yields: it backs away to ``give_way_distance_m`` from the doorway (after
-``give_way_patience_s``, to ``give_way_far_m``), stops there and goes on once the doorway has been free for
-``give_way_clear_s``. Boxed in, it backs away along the way it came (turning back first where it turned on the
-spot). A target whose distance has not improved for ``stuck_timeout_s`` marks the navigator stuck.
+flagged ``give_way``), the robot yields: it backs away to ``give_way_distance_m`` from the doorway, stops there and
+goes on once the doorway has been free for ``give_way_clear_s``. A target whose distance has not
+improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
 
@@ -113,9 +112,7 @@ class NavigatorConfig:
             long, back away while the space behind is free (no trail needed), s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
         recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
-            many seconds: the sensors see little behind the robot, the path it came along was free; where it
-            turned on the spot or along a tight arc last (wedged beside an open door leaf after turning towards
-            its target), it turns back first, s.
+            many seconds: the sensors see little behind the robot, the path it came along was free, s.
         turn_in_place: turn in place towards a target that no path reaches (see the module doc).
         turn_in_place_start_rad: ... when the target lies further than this off the heading, rad.
         turn_in_place_stop_rad: ... until it lies within this, or a path reaches it, rad.
@@ -136,8 +133,7 @@ class NavigatorConfig:
             when the robot is within ``give_way_check_m`` of the next such waypoint and, standing on it facing
             along the route, would overlap a sensed or remembered point for ``blocked_confirm_steps`` steps
             (someone stands in the doorway, often waiting to come out past the robot), it backs away straight at
-            ``give_way_speed_m_s`` while the space behind is free and on its trail (``recovery_trail_s``), until
-            ``give_way_distance_m`` from the doorway,
+            ``give_way_speed_m_s`` while the space behind is free, until ``give_way_distance_m`` from the doorway,
             and waits (state ``yielding``) until the doorway has been free for ``give_way_clear_s``. Without it
             the robot turned back and forth on the spot in front of the doorway, the way in blocked and the
             corridor behind free, while the people inside waited for it to make room.
@@ -145,10 +141,6 @@ class NavigatorConfig:
         give_way_distance_m: back away until this far from the doorway, m.
         give_way_speed_m_s: backward speed while yielding, m/s.
         give_way_clear_s: the doorway must look free this long before the robot goes on, s.
-        give_way_patience_s: after yielding this long with the doorway still taken, back away further, to
-            ``give_way_far_m``: whoever stands in the doorway may be waiting for the robot to get out of their way
-            (someone coming out to walk along the corridor past where the robot waits), s.
-        give_way_far_m: ... this far from the doorway, m.
     """
 
     ptgs: tuple[str, ...] = ("C", "alpha", "CS")
@@ -200,8 +192,6 @@ class NavigatorConfig:
     give_way_distance_m: float = 1.1
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
-    give_way_patience_s: float = 10.0
-    give_way_far_m: float = 2.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -222,8 +212,7 @@ class NavigatorConfig:
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
             *[(getattr(self, name) >= 0, f"{name} must be >= 0, got {getattr(self, name)}")
-              for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s",
-                           "give_way_patience_s", "give_way_far_m")],
+              for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s")],
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (self.turn_in_place_retry_s >= 0 and self.turn_in_place_retry_m >= 0,
@@ -337,7 +326,6 @@ class ReactiveNavigator3D:
         self._headings = np.zeros(0)
         self._give_way = np.zeros(0, dtype=bool)
         self._held_steps, self._yielding = 0, False  # steps the next doorway looked taken; yielding before it
-        self._yield_since_s: float | None = None  # when the robot began yielding before the doorway it yields at
         self._doorway_clear_since_s: float | None = None
         self._target = 0
         self._first_unpassed = 0  # the first waypoint not driven past (later ones up to _target were skipped)
@@ -355,7 +343,6 @@ class ReactiveNavigator3D:
         self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
         self._seam_side = 0  # the way the robot turns on paths across alpha = +-pi: +1 left, -1 right, 0 none
         self._trail: deque[tuple[float, float, float, float]] = deque()  # (stamp, x, y, yaw) of recent poses
-        self._retrace: list[tuple[float, float, float]] = []  # (x, y, yaw) of the trail when recovery began
         for method in getattr(self, "_holonomic", []):
             method.reset()
         if self._memory is not None:
@@ -396,7 +383,7 @@ class ReactiveNavigator3D:
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
         self._first_unpassed, self._progress_target = 0, -1  # waypoints before the first are passed
         self._headings, self._aligning, self._give_way = heading, False, yields
-        self._held_steps, self._yielding, self._doorway_clear_since_s, self._yield_since_s = 0, False, None, None
+        self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = self._goal_blocked_since_s = None
         self._spot_taken_steps = 0
@@ -490,7 +477,7 @@ class ReactiveNavigator3D:
         # A doorway someone stands in: make room and wait until it frees up
         doorway = self._held_doorway(stamp_s, T_odom_base, band_xy)
         if doorway is not None:
-            return self._yield(stamp_s, dt, t0, T_odom_base, band_xy, doorway, target_index)
+            return self._yield(dt, t0, T_odom_base, band_xy, doorway, target_index)
         # Candidates: one holonomic decision per PTG, then the best by eq. 6.5
         best, direct = self._best_candidate(target_base, limits, final=target_index == len(self._waypoints) - 1)
         # No path reaches a target far off the heading: turn in place towards it if the turning circle is free
@@ -611,20 +598,15 @@ class ReactiveNavigator3D:
 
     def _held_doorway(self, stamp_s: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> int | None:
         """The index of the doorway the robot yields at now, or None (see ``NavigatorConfig.give_way``): the
-        first of the current waypoint, the one after it and the one just passed while it still lies ahead of the
-        robot (a narrow waypoint counts as passed from beside it) flagged ``give_way``, its doorway within
-        ``give_way_check_m`` (while yielding: ``give_way_far_m`` too; :meth:`_doorway_distance_m`), whose spot
-        (facing from the waypoint before it) has been taken for ``blocked_confirm_steps`` steps, and held until it
-        has been free for ``give_way_clear_s``."""
+        current waypoint or the one after it, flagged ``give_way``, its doorway within ``give_way_check_m``
+        (:meth:`_doorway_distance_m`), whose spot (facing
+        from the waypoint before it) has been taken for ``blocked_confirm_steps`` steps, and held until it has
+        been free for ``give_way_clear_s``."""
         cfg = self.config
-        ahead = [k for k in (self._target, self._target + 1, self._target - 1)
-                 if 0 <= k < len(self._waypoints) - 1 and self._give_way[k]
-                 and (k >= self._target or self._lies_ahead(T_odom_base, self._waypoints[k]))]
+        ahead = [k for k in (self._target, self._target + 1) if k < len(self._waypoints) - 1 and self._give_way[k]]
         k = ahead[0] if ahead else -1
-        check_m = max(cfg.give_way_check_m, cfg.give_way_far_m + _FAR_SLACK_M) if self._yielding else \
-            cfg.give_way_check_m
-        if not cfg.give_way or k < 0 or self._doorway_distance_m(T_odom_base, k) > check_m:
-            self._held_steps, self._yielding, self._doorway_clear_since_s, self._yield_since_s = 0, False, None, None
+        if not cfg.give_way or k < 0 or self._doorway_distance_m(T_odom_base, k) > cfg.give_way_check_m:
+            self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
             return None
         spot = self._waypoints[k]
         before = self._waypoints[k - 1] if k > 0 else T_odom_base[:2, 2]
@@ -632,21 +614,12 @@ class ReactiveNavigator3D:
         taken = self._would_overlap(T_odom_base, spot, heading, band_xy)
         self._held_steps = self._held_steps + 1 if taken else 0
         if self._held_steps >= cfg.blocked_confirm_steps:
-            if not self._yielding:
-                self._yield_since_s = stamp_s
             self._yielding, self._doorway_clear_since_s = True, None
         elif self._yielding and not taken:
             if self._doorway_clear_since_s is None:
                 self._doorway_clear_since_s = stamp_s
             self._yielding = stamp_s - self._doorway_clear_since_s < cfg.give_way_clear_s
-        if not self._yielding:
-            self._yield_since_s = None
         return k if self._yielding else None
-
-    @staticmethod
-    def _lies_ahead(T_odom_base: np.ndarray, xy: np.ndarray) -> bool:
-        """Whether the point ``xy`` (fixed frame, m) lies in front of the robot (positive x in its base frame)."""
-        return float(se2.transform_points(se2.inverse(T_odom_base), xy[None])[0, 0]) > 0.0
 
     def _doorway_distance_m(self, T_odom_base: np.ndarray, doorway: int) -> float:
         """Distance from the robot to the nearest flagged waypoint of the doorway that ends at waypoint ``doorway``
@@ -655,21 +628,17 @@ class ReactiveNavigator3D:
         run = run[self._give_way[run]]
         return float(np.min(np.hypot(*(self._waypoints[run] - T_odom_base[:2, 2]).T)))
 
-    def _yield(self, stamp_s: float, dt: float, t0: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray],
-               doorway: int, target_index: int) -> NavCommand:
+    def _yield(self, dt: float, t0: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray], doorway: int,
+               target_index: int) -> NavCommand:
         """Before a held doorway: back away straight while facing it, nearer than ``give_way_distance_m`` to it or
         to a flagged waypoint just before it (a doorway can be a run of narrow waypoints: the robot standing in the
-        first while someone holds the next one still blocks their way out), the space behind free and where the
-        robot drove facing the same way (as in recovery: leaving a room it had turned on the spot in, it backed into
-        the open door leaf behind it, which its lidar did not see); else stop. After ``give_way_patience_s`` of
-        yielding, back away to ``give_way_far_m`` instead."""
+        first while someone holds the next one still blocks their way out) and the space behind is free; else
+        stop."""
         cfg = self.config
+        spot_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[doorway][None])[0]
         self._turning, self._blocked_since_s = False, None
-        patient = self._yield_since_s is not None and stamp_s - self._yield_since_s < cfg.give_way_patience_s
-        room_m = cfg.give_way_distance_m if patient else max(cfg.give_way_distance_m, cfg.give_way_far_m)
-        near = self._doorway_distance_m(T_odom_base, doorway) < room_m
-        if near and self._lies_ahead(T_odom_base, self._waypoints[doorway]) and self._behind_is_free(band_xy) \
-                and self._behind_is_trail(T_odom_base):
+        if float(spot_base[0]) > 0.0 and self._doorway_distance_m(T_odom_base, doorway) < cfg.give_way_distance_m \
+                and self._behind_is_free(band_xy):
             return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
         return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
 
@@ -879,52 +848,10 @@ class ReactiveNavigator3D:
         if self._blocked_since_s is None or \
                 stamp_s - self._blocked_since_s >= cfg.recovery_duration_s + cfg.recovery_retry_s:
             self._blocked_since_s = stamp_s
-            self._retrace = [pose[1:] for pose in self._trail]  # the way back, as it was before recovering
-        if stamp_s - self._blocked_since_s < cfg.recovery_duration_s:
-            if self._behind_is_free(band_xy) and self._behind_is_trail(T_odom_base):
-                return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "recovering", target_index)
-            w = self._turn_back(T_odom_base, band_xy)
-            if w != 0.0:
-                return self._output(0.0, w, dt, t0, "recovering", target_index)
+        if (stamp_s - self._blocked_since_s < cfg.recovery_duration_s and self._behind_is_free(band_xy)
+                and self._behind_is_trail(T_odom_base)):
+            return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "recovering", target_index)
         return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
-
-    def _turn_back(self, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> float:
-        """The yaw rate (rad/s) that turns the robot on the spot back towards the heading it had where it stands
-        (the latest pose of its trail more than ``_RETRACE_DONE_RAD`` off the heading, if it lies within
-        ``_RETRACE_SPOT_M`` of here and nearer than the heading change times ``_RETRACE_ARM_M``: the robot turned
-        there on the spot or along a tight arc), else 0: that heading was free, and straight back from it is the
-        way it came. 0 too when the turn would put an obstacle point inside the robot that is not inside it now."""
-        x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
-        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
-        while self._retrace:
-            px, py, pyaw = self._retrace[-1]
-            away_m, error = math.hypot(px - x, py - y), se2.wrap_angle(pyaw - yaw)
-            if away_m > _RETRACE_SPOT_M or abs(error) * _RETRACE_ARM_M < away_m:
-                return 0.0  # it drove here: backing away straight (or nothing)
-            if abs(error) > _RETRACE_DONE_RAD:
-                break
-            self._retrace.pop()
-        else:
-            return 0.0
-        step = math.copysign(min(abs(error), _RETRACE_CHECK_RAD), error)
-        if self._turn_would_hit(T_odom_base, yaw + step, band_xy):
-            return 0.0
-        return math.copysign(self.config.recovery_speed_m_s / _RETRACE_ARM_M, error)
-
-    def _turn_would_hit(self, T_odom_base: np.ndarray, yaw_rad: float, band_xy: list[np.ndarray]) -> bool:
-        """Whether turning on the spot to ``yaw_rad`` would put inside a band's section a point of ``band_xy``
-        (base frame) that is not inside it now."""
-        from simnav.navigation.collision_grid import points_in_polygon
-
-        T_base_turned = se2.from_xy_yaw(0.0, 0.0, yaw_rad - math.atan2(T_odom_base[1, 0], T_odom_base[0, 0]))
-        T_turned_base = se2.inverse(T_base_turned)
-        for band, pts in zip(self.bands, band_xy, strict=True):
-            if len(pts) == 0:
-                continue
-            new = points_in_polygon(se2.transform_points(T_turned_base, pts), band.polygon)
-            if np.any(new & ~points_in_polygon(pts, band.polygon)):
-                return True
-        return False
 
     def _behind_is_free(self, band_xy: list[np.ndarray]) -> bool:
         """Whether no sensed or remembered point lies where any band's section slides straight back by
@@ -1017,8 +944,3 @@ _DOORWAY_RUN = 3  # flagged waypoints this many before the held one belong to th
 # puts a leave waypoint and an approach waypoint between two narrow nodes in a row)
 _TRAIL_STEP_M = 0.02
 _TRAIL_STEP_RAD = math.radians(3)
-_FAR_SLACK_M = 0.2  # yielding from give_way_far_m, the doorway stays held from a little further
-_RETRACE_SPOT_M = 0.1  # trail poses this close count as where the robot stands (turned there on the spot)
-_RETRACE_DONE_RAD = math.radians(5)  # turned back to within this of a trail pose's heading: that pose is done
-_RETRACE_CHECK_RAD = math.radians(10)  # turning back, the robot checks this far ahead for obstacles
-_RETRACE_ARM_M = 0.25  # turning back at the recovery speed at this distance from the centre

@@ -158,21 +158,10 @@ def test_after_waiting_a_while_the_robot_backs_away_again(cache_dir) -> None:
 
 
 def test_the_robot_does_not_back_into_space_it_has_not_driven_through(cache_dir) -> None:
-    # after turning 90 degrees on the spot the space behind was never driven through (nor seen: lidars look
-    # ahead): it turns back towards the heading it came with instead
+    # after turning 90 degrees the space behind was never driven through (nor seen: lidars look ahead)
     cmd = _drive_in_then_blocked(make_nav(cache_dir), math.pi / 2)
-    assert cmd.state == "recovering"
-    assert cmd.v_m_s == pytest.approx(0.0) and cmd.w_rad_s < 0.0
-    # driven in along an arc of 0.4 m radius instead (its trail nowhere near the spot behind it): it waits
-    nav, r = make_nav(cache_dir), 0.4
-    nav.set_target((3.0, 3.0))
-    for k in range(31):
-        yaw = 0.05 * k
-        nav.step(0.05 * k, se2.from_xy_yaw(r * math.sin(yaw), r * (1.0 - math.cos(yaw)), yaw), np.zeros((0, 3)))
-    T = se2.from_xy_yaw(r * math.sin(1.5), r * (1.0 - math.cos(1.5)), 1.5)
-    for k in range(1, 31):
-        cmd = nav.step(1.5 + 0.05 * k, T, np.array([[0.2, 0.0, 0.2]]))
-    assert cmd.state == "waiting" and cmd.v_m_s == 0.0 and cmd.w_rad_s == 0.0
+    assert cmd.state == "waiting"
+    assert cmd.v_m_s == pytest.approx(0.0)
 
 
 def test_a_point_above_the_low_band_only_blocks_the_band_it_is_in(cache_dir) -> None:
@@ -362,15 +351,6 @@ def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
     return np.column_stack([x + radius * np.cos(a), y + radius * np.sin(a), np.full(24, 0.3)])
 
 
-def _driven_up_to(nav: ReactiveNavigator3D, y: float, from_y: float = -1.0, dt: float = 0.05) -> float:
-    """Feed the navigator the poses of a drive along x = 2 facing +y from ``from_y`` to ``y`` at 0.4 m/s, nothing
-    in sight (so that the trail behind it is where it drove); returns the time after it."""
-    steps = round((y - from_y) / (0.4 * dt))
-    for k in range(steps):
-        nav.step(k * dt, se2.from_xy_yaw(2.0, from_y + (y - from_y) * k / steps, np.pi / 2), np.zeros((0, 3)))
-    return steps * dt
-
-
 def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float, seconds: float = 40.0):
     """The robot at (2, start_y) facing +y drives through a 1 m doorway at (2, 1.1) (in a wall along y = 1.1) to
     (2, 2.5), the doorway flagged to yield at; someone stands in it, at (2, 1.3), until ``leaves_s``. Returns the
@@ -379,13 +359,12 @@ def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float
     nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
                       allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
                       give_way=np.array([False, True, False]))
-    t0 = _driven_up_to(nav, start_y, from_y=min(start_y - 1.0, -1.0)) if start_y > 0.0 else 0.0
     T, dt, distances, states = se2.from_xy_yaw(2.0, start_y, np.pi / 2), 0.05, [], []
     for k in range(int(seconds / dt)):
         there = k * dt < leaves_s
         world = np.vstack([walls, _person(2.0, 1.3)]) if there else walls
         pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
-        cmd = nav.step(t0 + k * dt, T, pts)
+        cmd = nav.step(k * dt, T, pts)
         if there:
             distances.append(float(np.linalg.norm(T[:2, 2] - [2.0, 1.1])))
             states.append(cmd.state)
@@ -406,38 +385,7 @@ def test_before_a_doorway_someone_stands_in_the_robot_makes_room_then_goes_throu
     nav = make_nav(cache_dir, give_way=False)
     distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
     assert cmd.state == "reached" and "yielding" not in states
-    assert distances.max() < nav.config.give_way_distance_m - 0.2  # measured: 0.79 m (recovery's backing)
-
-
-def test_yielding_backs_away_only_where_the_robot_drove(cache_dir) -> None:
-    # set down 0.6 m before the doorway with no trail behind it (or after turning on the spot): it yields standing
-    nav = make_nav(cache_dir)
-    nav.set_waypoints(np.array([[2.0, 1.1], [2.0, 2.5]]), give_way=np.array([True, False]))
-    walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1), _person(2.0, 1.3)])
-    T = se2.from_xy_yaw(2.0, 0.6, np.pi / 2)
-    pts = np.column_stack([se2.transform_points(se2.inverse(T), walls[:, :2]), walls[:, 2]])
-    commands = [nav.step(0.05 * k, T, pts) for k in range(40)]
-    assert commands[-1].state == "yielding"
-    assert min(c.v_m_s for c in commands) >= 0.0  # it never backs away
-
-
-def test_a_doorway_passed_from_just_before_it_is_yielded_at_while_someone_stands_behind_it(cache_dir) -> None:
-    # 0.25 m before the doorway its waypoint counts as passed (within 0.3 m) and the robot aims at the room's;
-    # someone stands just behind the doorway: the robot backs away from it all the same, as it lies ahead
-    walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
-    world = np.vstack([walls, _person(2.0, 1.45)])
-    nav = make_nav(cache_dir)
-    nav.set_waypoints(np.array([[2.0, 1.1], [2.0, 2.5], [2.0, 4.0]]), allowed_distance_m=np.full(3, 0.3),
-                      give_way=np.array([True, False, False]))
-    t0 = _driven_up_to(nav, 0.85)
-    T, dt, states = se2.from_xy_yaw(2.0, 0.85, np.pi / 2), 0.05, []
-    for k in range(300):
-        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
-        cmd = nav.step(t0 + k * dt, T, pts)
-        states.append(cmd.state)
-        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
-    assert cmd.target_index == 1 and states[-1] == "yielding"
-    assert 1.1 - T[1, 2] >= nav.config.give_way_distance_m - 0.02  # measured: 1.11 m
+    assert distances.max() < 0.6  # measured: 0.50 m throughout
 
 
 def test_a_doorway_someone_stands_in_is_waited_for_from_where_the_robot_sees_it(cache_dir) -> None:
@@ -454,24 +402,18 @@ def test_before_a_doorway_of_two_narrow_nodes_the_robot_makes_room_from_the_firs
     # robot backs away until 1.1 m from the first, out of the way of whoever comes out
     walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
     world = np.vstack([walls, _person(2.0, 2.0)])
-    nav = make_nav(cache_dir, recovery_trail_s=40.0)  # the way back from 2 m away was driven 20 s before
+    nav = make_nav(cache_dir)
     nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 1.48], [2.0, 1.85], [2.0, 3.0]]),
                       allow_skip=np.array([False, False, True, False, True]),
                       allowed_distance_m=np.array([0.15, 0.3, 0.3, 0.3, 0.3]),
                       headings_rad=np.array([np.pi / 2, np.nan, np.nan, np.nan, np.nan]),
                       give_way=np.array([False, True, False, True, False]))
-    t0 = _driven_up_to(nav, 0.6, from_y=-1.2)
-    T, dt, away, states = se2.from_xy_yaw(2.0, 0.6, np.pi / 2), 0.05, [], []
-    for k in range(500):
-        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
-        cmd = nav.step(t0 + k * dt, T, pts)
+    T, dt = se2.from_xy_yaw(2.0, 0.6, np.pi / 2), 0.05
+    for k in range(300):
+        cmd = nav.step(k * dt, T, np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]]))
         T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
-        away.append(1.1 - T[1, 2])
-        states.append(cmd.state)
-    assert set(states[states.index("yielding"):]) == {"yielding"}
-    assert 1.1 - 0.02 <= away[180] < 1.2  # at 9 s; measured: 1.10 m from the first (1.85 m from the second)
-    # after give_way_patience_s of yielding, the person still there, it makes more room
-    assert nav.config.give_way_far_m - 0.02 <= away[-1] < nav.config.give_way_far_m + 0.1  # at 25 s; measured: 2.00 m
+    assert cmd.state == "yielding"
+    assert 1.1 - 0.02 <= 1.1 - T[1, 2] < 1.2  # measured: 1.10 m from the first (1.85 m from the second)
 
 
 def test_a_skipped_waypoint_is_aimed_at_again_when_the_later_one_is_no_longer_reachable(cache_dir) -> None:
