@@ -11,9 +11,7 @@ moment. Anybody who comes less than 0.3 m closer to their next waypoint in 10 s 
 roadmap node in sight to a new goal, preferring one whose route turns back (two people or a person and a robot
 facing each other in a hallway too narrow to pass otherwise wait for ever); so does anybody blocked by a robot
 again soon after stepping aside for it. People keep ``circle_clearance_m`` of personal space from a robot (the
-round obstacles). A waypoint counts as passed only with the next one in sight past the walls and door leaves, and
-someone slow whose waypoint is out of sight heads back to the one before it (else a person pushed back into a
-room after passing its doorway's node walked for the corridor straight into the jamb or the open leaf).
+round obstacles).
 """
 
 from __future__ import annotations
@@ -24,16 +22,7 @@ import math
 
 import numpy as np
 
-from simnav.agents.kernels import (
-    crowd_advance,
-    crowd_back_in_sight,
-    crowd_move,
-    crowd_plan_events,
-    grid_lists,
-    grid_pairs,
-    in_sight,
-    set_segments,
-)
+from simnav.agents.kernels import crowd_advance, crowd_move, crowd_plan_events, grid_lists, grid_pairs
 from simnav.agents.roadmap import RoadmapGraph
 from simnav.agents.social_force import (
     NEAR_SLACK_M,
@@ -292,8 +281,8 @@ class Crowd:
         self._time_s += dt_s
         if len(circ) and self._circle_pad[2] > 0:  # personal space around robots
             circ = circ + self._circle_pad
+        self._update_plans(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
-        self._update_plans(dt_s, circ, self._sight_walls(dyn))
         events = self._move(dt_s, dyn, circ, circ_vel, has_circles)
         if len(events):
             self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
@@ -312,15 +301,6 @@ class Crowd:
                 self._replan_stuck(int(k), walls)
             if blocker >= n:
                 self._robot_yield_t[k] = self._time_s
-
-    def _sight_walls(self, dyn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(start (M, 2), delta (M, 2)) of the walls and this step's (D, 2, 2) moving segments ``dyn`` (an open door
-        leaf hides the node behind it too), metres."""
-        if len(dyn) == 0:
-            return self._walls.start, self._walls.delta
-        start, delta, inv_len2, m = self._extended_args
-        set_segments(start, delta, inv_len2, m, dyn)
-        return start, delta
 
     def _moving_segments(self, dynamic_segments: np.ndarray | None) -> np.ndarray:
         """The (D, 2, 2) moving segments (metres), contiguous, with room for them after the walls (kept while D
@@ -412,34 +392,33 @@ class Crowd:
     def _set_target(self, k: int) -> None:
         self._target[k] = self._path_xy[k, self._wp[k]]
 
-    def _update_plans(self, dt_s: float, circles: np.ndarray, walls: tuple[np.ndarray, np.ndarray]) -> None:
+    def _update_plans(self, dt_s: float, circles: np.ndarray) -> None:
         """Pauses run down and new goals; waypoints reached, counting a robot (in (C, 3) ``circles``) standing on
-        the target as there, and with the waypoint after them in sight past ``walls`` (start, delta); someone
-        slow whose target is out of sight heads back to the waypoint before it."""
+        the target as there."""
         plans = (self._pos, self._target, self._path_xy, self._wp, self._last_wp)
-        crowd_back_in_sight(self._arrived, self._vel, plans, walls, BLOCKED_SPEED_M_S)
+        walls = (self._walls.start, self._walls.delta)
         due, events = crowd_plan_events(self._pause_s, self._arrived, dt_s, plans, circles, self._limits, walls)
         if len(due):
             for k in due:
                 self._plan(int(k), int(self._goals[k]))
             events = crowd_advance(self._arrived, plans, circles, self._limits, walls)
         if len(events):
-            self._settle(events, walls)
+            self._settle(events)
 
-    def _settle(self, events: np.ndarray, walls: tuple[np.ndarray, np.ndarray]) -> None:
+    def _settle(self, events: np.ndarray) -> None:
         """Pauses for those who arrived, and the waypoints the kernel left to numpy's norm: (E, 2) events
         [pedestrian, kind] of :func:`~simnav.agents.kernels.crowd_advance`."""
         for k, unsettled in events:
             if unsettled:
-                if self._within_reach(int(k), walls):
-                    self._advance(int(k), walls)
+                last = self._wp[k] == self._last_wp[k]
+                if np.linalg.norm(self._target[k] - self._pos[k]) < (GOAL_REACHED_M if last else WAYPOINT_REACHED_M):
+                    self._advance(int(k))
             else:
                 self._pause_s[k] = self._rng.uniform(0.0, MAX_PAUSE_S)
 
-    def _advance(self, k: int, walls: tuple[np.ndarray, np.ndarray]) -> None:
-        """Pedestrian k takes the next waypoints until one is out of reach (or the one after it out of sight), or
-        arrives (see :func:`~simnav.agents.kernels.crowd_advance`, which measures the distances in the common
-        case)."""
+    def _advance(self, k: int) -> None:
+        """Pedestrian k takes the next waypoints until one is out of reach, or arrives (see
+        :func:`~simnav.agents.kernels.crowd_advance`, which measures the distances in the common case)."""
         while True:
             if self._wp[k] == self._last_wp[k]:
                 self._arrived[k] = True
@@ -447,20 +426,10 @@ class Crowd:
                 return
             self._wp[k] += 1
             self._set_target(k)
-            if not self._within_reach(k, walls):
+            last = self._wp[k] == self._last_wp[k]
+            reach_m = GOAL_REACHED_M if last else WAYPOINT_REACHED_M
+            if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
                 return
-
-    def _within_reach(self, k: int, walls: tuple[np.ndarray, np.ndarray]) -> bool:
-        """Whether pedestrian k's target is within reach (``np.linalg.norm``), with the waypoint after it in
-        sight past ``walls`` (start, delta; see :func:`~simnav.agents.kernels.crowd_advance`)."""
-        last = self._wp[k] == self._last_wp[k]
-        reach_m = GOAL_REACHED_M if last else WAYPOINT_REACHED_M
-        if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
-            return False
-        if last:
-            return True
-        (px, py), (qx, qy) = self._pos[k], self._path_xy[k, self._wp[k] + 1]
-        return bool(in_sight(float(px), float(py), float(qx), float(qy), *walls))
 
     def _step_back(self, k: int, blocker: int, circles: np.ndarray) -> None:
         """Pedestrian k, blocked by ``blocker`` (a pedestrian, or N + the index of a round obstacle in (C, 3)

@@ -718,26 +718,6 @@ def crowd_plan_events(pause_s: np.ndarray, arrived: np.ndarray, dt_s: float, pla
 
 
 @njit(cache=True, error_model="numpy")
-def crowd_back_in_sight(arrived: np.ndarray, vel: np.ndarray, plans: tuple, walls: tuple, slow_m_s: float) -> None:
-    """Send the walking pedestrians slower than ``slow_m_s`` (their (N, 2) ``vel``, m/s) whose target is out of
-    sight past ``walls`` (start (M, 2), delta (M, 2), metres) back to the waypoint before it when that one is in
-    sight (in place; ``plans`` as :func:`crowd_advance`'s): pushed back past a door jamb or an open leaf after
-    passing the doorway's node (stepping back in a face-off), a person headed for the next node straight into
-    the jamb or leaf and stayed pressed there."""
-    pos, target, paths, wp, last_wp = plans
-    start, delta = walls
-    for i in range(pos.shape[0]):
-        if arrived[i] or wp[i] == 0 or vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1] >= slow_m_s * slow_m_s:
-            continue
-        if in_sight(pos[i, 0], pos[i, 1], target[i, 0], target[i, 1], start, delta):
-            continue
-        prev = paths[i, wp[i] - 1]
-        if in_sight(pos[i, 0], pos[i, 1], prev[0], prev[1], start, delta):
-            wp[i] -= 1
-            target[i, 0], target[i, 1] = prev[0], prev[1]
-
-
-@njit(cache=True, error_model="numpy")
 def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
                   limits: tuple[float, float, float, float], walls: tuple) -> np.ndarray:
     """Move the walking pedestrians within reach of their targets on along their paths (in place).
@@ -747,10 +727,10 @@ def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
     margin), metres; ``walls`` = (start (M, 2), delta (M, 2)) of the static wall segments, metres. Within reach:
     closer than that, plus :func:`_occupied_extra` of the (C, 3) ``circles`` (a robot standing on the target:
     nobody walks onto someone else's spot, so without it, people whose next roadmap node a robot stands on would
-    circle it for ever), and the waypoint after the target in sight (or the target is the goal): else a person
-    half a metre inside a doorway headed for the node after it straight into the door jamb and stayed pressed
-    there. A pedestrian takes the next waypoints until one is out of reach (then without the extra) or the one
-    after it is not in sight, or arrives.
+    circle it for ever) when the waypoint after the target is in sight (or the target is the goal): else a
+    person in a doorway, with a robot on the node outside it, headed for the node after it straight into the
+    door jamb and stayed pressed there. A pedestrian takes the next waypoints until one is out of reach (then
+    without the extra), or arrives.
 
     Returns:
         (E, 2) events [pedestrian, kind], ascending: kind 0, it arrived (and needs a pause); kind 1, the distance
@@ -779,9 +759,6 @@ def crowd_advance(arrived: np.ndarray, plans: tuple, circles: np.ndarray,
                 events[count, 0], events[count, 1] = i, 1
                 count += 1
                 break
-            if wp[i] != last_wp[i] and not in_sight(pos[i, 0], pos[i, 1], paths[i, wp[i] + 1, 0],
-                                                     paths[i, wp[i] + 1, 1], walls[0], walls[1]):
-                break
     return events[:count]
 
 
@@ -803,9 +780,9 @@ def _reached(pos: np.ndarray, target: np.ndarray, paths: np.ndarray, wp: np.ndar
         dist, reach = math.sqrt(dx * dx + dy * dy), goal_m if last else waypoint_m
         if dist >= reach + extra[i]:
             continue
-        if not last:  # the waypoint after it must be in sight
+        if dist >= reach and not last:  # reached only thanks to a robot on the target
             nxt = paths[i, wp[i] + 1]
-            if not in_sight(pos[i, 0], pos[i, 1], nxt[0], nxt[1], walls[0], walls[1]):
+            if not _in_sight(pos[i, 0], pos[i, 1], nxt[0], nxt[1], walls[0], walls[1]):
                 continue
         out[count] = i
         count += 1
@@ -813,7 +790,7 @@ def _reached(pos: np.ndarray, target: np.ndarray, paths: np.ndarray, wp: np.ndar
 
 
 @njit(cache=True, error_model="numpy")
-def in_sight(px: float, py: float, qx: float, qy: float, start: np.ndarray, delta: np.ndarray) -> bool:
+def _in_sight(px: float, py: float, qx: float, qy: float, start: np.ndarray, delta: np.ndarray) -> bool:
     """Whether the straight segment p → q touches none of the (M, 2) segments start → start + delta."""
     for s in range(start.shape[0]):
         if _crosses(px, py, qx, qy, start[s, 0], start[s, 1], delta[s, 0], delta[s, 1]):
@@ -855,7 +832,7 @@ def crowd_prepare(pos: np.ndarray, vel: np.ndarray, dirs: np.ndarray, target: np
     """
     drive = _desired_update(dirs, target, pos, yield_s, yield_dir, speeds, arrived, yield_factor)
     start, delta, inv_len2, m = walls
-    set_segments(start, delta, inv_len2, m, dyn)
+    _set_segments(start, delta, inv_len2, m, dyn)
     ped, seg = _pairs(pos, grid, m, dyn.shape[0])
     offsets = wall_offsets(pos, start, delta, inv_len2, ped, seg, 0.0)  # lengths: sqrt(dx² + dy²), not hypot
     forced = _within(offsets[:, 2], wall_far_m(p))
@@ -887,7 +864,7 @@ def _desired_update(dirs: np.ndarray, target: np.ndarray, pos: np.ndarray, yield
 
 
 @njit(cache=True, error_model="numpy")
-def set_segments(start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, m: int, dyn: np.ndarray) -> None:
+def _set_segments(start: np.ndarray, delta: np.ndarray, inv_len2: np.ndarray, m: int, dyn: np.ndarray) -> None:
     """Write the (D, 2, 2) segments ``dyn`` (metres) after the first m prepared segments, as
     :class:`~simnav.agents.social_force.Segments` prepares them."""
     for d in range(dyn.shape[0]):

@@ -38,7 +38,7 @@ class ReferenceCrowd(Crowd):
         self._time_s += dt_s
         if circles is not None and len(circles):  # personal space around robots
             circles = np.asarray(circles, dtype=float).reshape(-1, 3) + [0.0, 0.0, self._params.circle_clearance_m]
-        self._reference_plans(dt_s, circles, dynamic_segments)
+        self._reference_plans(dt_s, circles)
         drive = _desired_update(self._dirs, self._target, self._pos, self._yield_s, self._yield_dir, self._speeds,
                                 self._arrived, crowd_module.YIELD_SPEED_FACTOR)
         segs, ped, seg = self._reference_pairs(self._pos, dynamic_segments)
@@ -64,17 +64,7 @@ class ReferenceCrowd(Crowd):
         dyn_ped, dyn_seg = all_pairs(len(points), len(dyn))
         return self._walls.extended(dyn), np.concatenate([ped, dyn_ped]), np.concatenate([seg, dyn_seg + len(segs)])
 
-    def _reference_plans(self, dt_s, circles, dynamic_segments):
-        sight = self._walls
-        if dynamic_segments is not None and len(dynamic_segments):  # door leaves hide the nodes behind them too
-            sight = self._walls.extended(np.asarray(dynamic_segments, dtype=float).reshape(-1, 2, 2))
-        # someone slow whose target is out of sight heads back to the waypoint before it, when that one is in sight
-        slow = np.linalg.norm(self._vel, axis=1) < crowd_module.BLOCKED_SPEED_M_S
-        for k in np.nonzero(~self._arrived & (self._wp > 0) & slow)[0]:
-            before = self._path_xy[k, self._wp[k] - 1]
-            if not _visible(self._pos[k], self._target[k], sight) and _visible(self._pos[k], before, sight):
-                self._wp[k] -= 1
-                self._set_target(int(k))
+    def _reference_plans(self, dt_s, circles):
         self._pause_s[self._arrived] -= dt_s
         for k in np.nonzero(self._arrived & (self._pause_s <= 0.0))[0]:
             self._plan(int(k), int(self._goals[k]))
@@ -87,11 +77,11 @@ class ReferenceCrowd(Crowd):
             extra = np.max(np.where(gap < crowd_module.OCCUPIED_MARGIN_M, c[:, 2] + r, 0.0), axis=1)
         reach = np.where(last, crowd_module.GOAL_REACHED_M, crowd_module.WAYPOINT_REACHED_M)
         for k in np.nonzero(~self._arrived & (dist < reach + extra))[0]:
-            # reached only with the waypoint after the target in sight (or it is the goal)
+            # the robot's extra counts only when the waypoint after the target is in sight (or it is the goal)
             next_xy = self._path_xy[k, min(self._wp[k] + 1, self._last_wp[k])]
-            if not last[k] and not _visible(self._pos[k], next_xy, sight):
+            if dist[k] >= reach[k] and not last[k] and not _visible(self._pos[k], next_xy, self._walls):
                 continue
-            self._advance(int(k), (sight.start, sight.delta))
+            self._advance(int(k))
 
     def _reference_yaws(self, dt_s):
         speed = np.linalg.norm(self._vel, axis=1)
@@ -195,8 +185,8 @@ def test_a_waypoint_at_the_reach_within_rounding_is_settled_with_numpy(next_x: f
     walls = (crowds[0]._walls.start, crowds[0]._walls.delta)
     events = crowd_advance(crowds[0]._arrived.copy(), plans, np.zeros((0, 3)), crowds[0]._limits, walls)
     np.testing.assert_array_equal(events, [[0, 1]])  # the kernel leaves it to numpy's norm
-    crowds[0]._update_plans(0.1, np.zeros((0, 3)), walls)
-    crowds[1]._reference_plans(0.1, None, None)
+    crowds[0]._update_plans(0.1, np.zeros((0, 3)))
+    crowds[1]._reference_plans(0.1, None)
     assert crowds[0]._wp[0] == crowds[1]._wp[0] == expected_wp
     np.testing.assert_array_equal(crowds[0].waypoints_xy, crowds[1].waypoints_xy)
 
@@ -261,49 +251,5 @@ def test_a_robot_on_the_next_node_counts_as_passed_only_with_the_node_after_it_i
     crowd._wp[0], crowd._last_wp[0], crowd._arrived[0] = 1, 2, False
     crowd._set_target(0)
     robot = np.array([[0.0, -0.1, 0.3]])
-    crowd._update_plans(0.1, robot + [0.0, 0.0, crowd._params.circle_clearance_m],
-                        (crowd._walls.start, crowd._walls.delta))
-    assert crowd._wp[0] == expected_wp
-
-
-@pytest.mark.parametrize(("leaf", "expected_wp"), [(False, 2), (True, 1)])
-def test_a_waypoint_is_passed_only_with_the_next_one_in_sight_past_the_door_leaves(leaf: bool,
-                                                                                   expected_wp: int) -> None:
-    # a person in a room, 0.35 m from the doorway node (0, 0.6) and heading for it; the next node lies beyond
-    # the doorway, in sight through it, unless a door leaf half open into the corridor hides it: then the person
-    # keeps heading for the doorway node (else it walks for the node straight into the leaf and stays pressed)
-    path = np.array([[0.0, 2.0], [0.0, 0.6], [-0.3, -2.0]])
-    walls = np.array([[[-2.0, 0.6], [-0.45, 0.6]], [[0.45, 0.6], [2.0, 0.6]]])
-    crowd = Crowd(RoadmapGraph(path, [(0, 1), (1, 2)]), walls, 1, np.random.default_rng(0))
-    crowd._pos = np.array([[0.0, 0.95]])
-    crowd._path_xy[0, :3] = path
-    crowd._wp[0], crowd._last_wp[0], crowd._arrived[0] = 1, 2, False
-    crowd._set_target(0)
-    swing = math.radians(45.0)
-    leaves = np.array([[[0.45, 0.6], [0.45 - 0.9 * math.cos(swing), 0.6 - 0.9 * math.sin(swing)]]])
-    sight = crowd._walls.extended(leaves) if leaf else crowd._walls
-    crowd._update_plans(0.1, np.zeros((0, 3)), (sight.start, sight.delta))
-    assert crowd._wp[0] == expected_wp
-    # and so does the step with the leaf among its moving segments
-    stepped = Crowd(RoadmapGraph(path, [(0, 1), (1, 2)]), walls, 1, np.random.default_rng(0))
-    stepped._pos, stepped._path_xy[0, :3] = np.array([[0.0, 0.95]]), path
-    stepped._wp[0], stepped._last_wp[0], stepped._arrived[0] = 1, 2, False
-    stepped._set_target(0)
-    stepped.step(0.01, dynamic_segments=leaves if leaf else None)
-    assert stepped._wp[0] == expected_wp
-
-
-@pytest.mark.parametrize(("speed_m_s", "expected_wp"), [(0.0, 1), (1.0, 2)])
-def test_someone_slow_whose_waypoint_is_out_of_sight_heads_back_to_the_one_before(speed_m_s: float,
-                                                                                  expected_wp: int) -> None:
-    # pushed back into the room past the doorway's node (0, 0.6), heading for the corridor node (-3, 0) behind
-    # the wall: standing still, the person heads for the doorway's node again; still walking, not yet
-    path = np.array([[0.0, 2.0], [0.0, 0.6], [-3.0, 0.0], [-6.0, 0.0]])
-    walls = np.array([[[-4.0, 0.6], [-0.45, 0.6]], [[0.45, 0.6], [2.0, 0.6]]])
-    crowd = Crowd(RoadmapGraph(path, [(0, 1), (1, 2), (2, 3)]), walls, 1, np.random.default_rng(0))
-    crowd._pos, crowd._vel = np.array([[0.1, 1.2]]), np.array([[0.0, speed_m_s]])
-    crowd._path_xy[0, :4] = path
-    crowd._wp[0], crowd._last_wp[0], crowd._arrived[0] = 2, 3, False
-    crowd._set_target(0)
-    crowd._update_plans(0.1, np.zeros((0, 3)), (crowd._walls.start, crowd._walls.delta))
+    crowd._update_plans(0.1, robot + [0.0, 0.0, crowd._params.circle_clearance_m])
     assert crowd._wp[0] == expected_wp
