@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 import simnav  # noqa: F401  (sets up the environment like every simnav entry point)
-from crowd_around_robot import office_crowd_run
+from crowd_around_robot import AGENT_DT_S, SLOW_M_S, office_crowd_run
 from simnav.agents import Crowd
 from simnav.agents.doors import DoorLeaves
 from simnav.mission.mission import NARROW_NODE_CLEARANCE_M
@@ -27,8 +27,6 @@ from simnav.sim import Simulator
 from simnav.world.footprint import clearance_m
 
 NEAR_M = 1.0
-SLOW_M_S = 0.2
-AGENT_DT_S = 0.04
 
 
 def held_in_doorways(sim: Simulator, walls: np.ndarray, doorways_xy: np.ndarray, seed: int,
