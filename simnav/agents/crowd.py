@@ -147,9 +147,6 @@ class Crowd:
         speed_mean_m_s: mean desired speed; speeds ~ N(mean, std) clipped to [0.5, 2.0] m/s.
         speed_std_m_s: standard deviation of the desired speed.
         keep_out: (K, 3) circles ``[x, y, radius]`` (metres) where nobody may spawn, e.g. around the robot.
-        goal_nodes: (G,) indices of the roadmap nodes people head for and pause at (default: every node); the
-            simulator gives those clear of every door's swing by a body radius (the closed leaf spans the doorway):
-            nobody stops in a doorway or where a door opens.
 
     Raises:
         ValueError: when a pedestrian cannot be placed near any roadmap node or edge.
@@ -165,11 +162,8 @@ class Crowd:
         speed_mean_m_s: float = 1.34,
         speed_std_m_s: float = 0.26,
         keep_out: np.ndarray | None = None,
-        goal_nodes: np.ndarray | None = None,
     ) -> None:
         self._roadmap = roadmap
-        self._goal_nodes = np.arange(roadmap.node_count) if goal_nodes is None else \
-            np.asarray(goal_nodes, dtype=np.int64).ravel()
         self._params = params
         self._rng = rng
         self._wall_xy = np.asarray(walls_xy, dtype=float).reshape(-1, 2, 2)
@@ -302,7 +296,7 @@ class Crowd:
         for k, blocker in events:
             robot_again = blocker >= n and self._time_s - self._robot_yield_t[k] <= ROBOT_GIVE_UP_S
             if blocker >= 0 and not robot_again:
-                self._step_back(int(k), int(blocker), circles, walls)
+                self._step_back(int(k), int(blocker), circles)
             else:
                 self._replan_stuck(int(k), walls)
             if blocker >= n:
@@ -382,7 +376,7 @@ class Crowd:
         path = [start_node]
         goal = start_node
         for _ in range(attempts):
-            goal = self._random_goal(start_node)
+            goal = self._roadmap.random_node(self._rng, exclude=start_node)
             path = self._roadmap.shortest_path(start_node, goal)
             if path:
                 break
@@ -394,14 +388,6 @@ class Crowd:
         self._last_wp[k] = len(path) - 1
         self._arrived[k] = False
         self._set_target(k)
-
-    def _random_goal(self, start_node: int) -> int:
-        """A goal node other than ``start_node``, drawn uniformly from the goal nodes (any node when they are
-        ``start_node`` alone)."""
-        candidates = self._goal_nodes[self._goal_nodes != start_node]
-        if len(candidates) == 0:
-            return self._roadmap.random_node(self._rng, exclude=start_node)
-        return int(candidates[self._rng.integers(len(candidates))])
 
     def _set_target(self, k: int) -> None:
         self._target[k] = self._path_xy[k, self._wp[k]]
@@ -445,28 +431,20 @@ class Crowd:
             if np.linalg.norm(self._target[k] - self._pos[k]) >= reach_m:
                 return
 
-    def _step_back(self, k: int, blocker: int, circles: np.ndarray, walls: Segments) -> None:
+    def _step_back(self, k: int, blocker: int, circles: np.ndarray) -> None:
         """Pedestrian k, blocked by ``blocker`` (a pedestrian, or N + the index of a round obstacle in (C, 3)
-        ``circles``), yields for 1–2.5 s: back from a pedestrian; from a robot, towards a spot
-        ROBOT_PASSING_GAP_M beside it, on the right of the way it wanted to go where their body fits there among
-        ``walls`` and the way to it is clear, else on the left, else back from the robot."""
+        ``circles``), yields for 1–2.5 s: back from a pedestrian; from a robot, towards a
+        spot ROBOT_PASSING_GAP_M beside it, on the right of the way it wanted to go."""
         n = len(self._pos)
-        away = -(self._pos[blocker] - self._pos[k]) if blocker < n else self._beside_robot(k, circles[blocker - n],
-                                                                                            walls)
+        if blocker < n:
+            away = -(self._pos[blocker] - self._pos[k])
+        else:
+            right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
+            beside = circles[blocker - n, :2] + (circles[blocker - n, 2] + self.radius_m + ROBOT_PASSING_GAP_M) * right
+            away = beside - self._pos[k]
         self._yield_dir[k] = away / max(float(np.linalg.norm(away)), 1e-9)
         self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
         self._blocked_s[k] = 0.0
-
-    def _beside_robot(self, k: int, circle: np.ndarray, walls: Segments) -> np.ndarray:
-        """Pedestrian k's way to step aside from the robot ``circle`` [x, y, radius]: to the spot beside it on
-        their right, or on their left, where they fit (see :meth:`_step_back`); back from it when neither."""
-        right = np.array([self._dirs[k, 1], -self._dirs[k, 0]])
-        reach_m = circle[2] + self.radius_m + ROBOT_PASSING_GAP_M
-        for side in (right, -right):
-            beside = circle[:2] + reach_m * side
-            if _wall_distance_m(beside, walls) >= self.radius_m and _visible(self._pos[k], beside, walls):
-                return beside - self._pos[k]
-        return self._pos[k] - circle[:2]
 
     def _replan_stuck(self, k: int, walls: Segments) -> None:
         """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``): of up to
@@ -549,16 +527,6 @@ class Crowd:
         if len(keep_out) and np.any(np.linalg.norm(keep_out[:, :2] - xy, axis=1) < keep_out[:, 2] + r):
             return False
         return True
-
-
-def _wall_distance_m(p: np.ndarray, walls: Segments) -> float:
-    """Distance from the point p to the nearest wall segment, m (+inf without walls)."""
-    if len(walls) == 0:
-        return math.inf
-    rel = np.asarray(p, float) - walls.start
-    t = np.clip(np.einsum("ij,ij->i", rel, walls.delta) * walls.inv_len2, 0.0, 1.0)
-    gap = rel - t[:, None] * walls.delta
-    return float(np.sqrt(np.min(np.einsum("ij,ij->i", gap, gap))))
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:

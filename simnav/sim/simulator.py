@@ -21,7 +21,6 @@ from numba import njit
 
 from simnav.agents import Crowd, RoadmapGraph, Wanderers
 from simnav.agents.doors import DoorLeaves
-from simnav.agents.social_force import SocialForceParams
 from simnav.errors import SimnavError
 from simnav.robot.spec import Lidar2DSensor, Lidar3DSensor, RGBDSensor, RobotSpec, WheelEncoderSensor
 from simnav.sensors.lidar import Lidar2D, Lidar3D
@@ -32,7 +31,7 @@ from simnav.sim.clearance import ContactClearance
 from simnav.sim.config import SimConfig
 from simnav.sim.native import FUNCTIONS, NATIVE, STATE, quiet_timers, ramp_steps, restore_timers, robot_shadow
 from simnav.sim.scene import build_scene, robot_alone
-from simnav.world.footprint import door_swing_distance_m, obstacle_segments
+from simnav.world.footprint import obstacle_segments
 from simnav.world.mjcf import WANDERER_RADIUS_M
 from simnav.world.schema import WorldSpec
 
@@ -72,9 +71,6 @@ class Simulator:
         self._base_qpos, self._base_qvel = self.data.qpos[self._qs], self.data.qvel[self._vs]  # (3,) x, y, yaw views
         self.roadmap = RoadmapGraph.from_spec(world.roadmap)
         self._walls_xy = obstacle_segments(world)
-        # people head for places to stand: no node in a doorway or a door's swing is anyone's goal
-        clear_of_doors = door_swing_distance_m(world, self.roadmap.nodes_xy) >= SocialForceParams().radius_m
-        self._people_goals = np.flatnonzero(clear_of_doors)
         self.robot_radius_m = _circumradius(robot)
         self._motor_substeps = max(1, round(MOTOR_PERIOD_S / self.config.physics_dt_s))
         self._dt_s, self._agent_dt_s = self.config.physics_dt_s, self.config.agent_dt_s
@@ -158,7 +154,7 @@ class Simulator:
         try:
             self.crowd = Crowd(self.roadmap, self._walls_xy, self.pedestrian_count, self._rng_crowd,
                                speed_mean_m_s=agents.speed_mean_m_s, speed_std_m_s=agents.speed_std_m_s,
-                               keep_out=keep_out, goal_nodes=self._people_goals)
+                               keep_out=keep_out)
         except ValueError as err:
             raise SimnavError(f"world '{self.world.name}': {err}; try fewer people (--agents)") from None
         keep_out = np.vstack([keep_out, np.column_stack([self.crowd.positions_xy,

@@ -239,36 +239,3 @@ def test_people_facing_a_robot_in_a_hallway_too_narrow_to_pass_turn_back() -> No
         longest_s = np.maximum(longest_s, near_s)
     assert np.all(longest_s > 3.0)  # both came up to the robot and were held up there ...
     assert np.all(longest_s < 25.0)  # ... but nobody stayed
-
-
-def test_people_head_only_for_their_goal_nodes() -> None:
-    roadmap = _room_roadmap()
-    allowed = np.array([0, 7, 12, 29])
-    crowd = Crowd(roadmap, ROOM_WALLS, 6, np.random.default_rng(5), goal_nodes=allowed)
-    goals = set(crowd.goals.tolist())
-    for _ in range(int(120.0 / DT)):
-        crowd.step(DT)
-        goals |= set(crowd.goals.tolist())
-    assert goals <= set(allowed.tolist())
-    assert len(goals) == len(allowed)  # new goals were drawn, among all of them
-
-
-def test_a_person_steps_aside_from_a_robot_where_their_body_fits() -> None:
-    # walking west (-x) along a 2.2 m corridor past a robot standing 0.2 m north of its middle: on their right
-    # (north) the spot beside the robot lies beyond the wall; they step to the south, 0.35 m from the wall
-    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [15.0, 0.0]]), [(0, 1)])
-    corridor = np.array([[[-1.0, -1.1], [16.0, -1.1]], [[-1.0, 1.1], [16.0, 1.1]]])
-    crowd = Crowd(roadmap, corridor, 1, np.random.default_rng(1))
-    crowd._dirs[0] = [-1.0, 0.0]
-    crowd._pos[0] = [9.0, 0.0]
-    robot = np.array([7.5, 0.2, 0.4])
-    way = crowd._beside_robot(0, robot, crowd._walls)
-    spot = crowd.positions_xy[0] + way
-    assert spot[1] < robot[1] - robot[2]  # south of the robot
-    assert np.isclose(np.linalg.norm(spot - robot[:2]), robot[2] + crowd.radius_m + 0.3)
-    # with the robot on the centreline the right side has room: north, as people keep right
-    way = crowd._beside_robot(0, np.array([7.5, -0.3, 0.4]), crowd._walls)
-    assert np.isclose((crowd.positions_xy[0] + way)[1], 0.65)
-    # with no room on either side: back from the robot
-    way = crowd._beside_robot(0, np.array([7.5, 0.0, 0.8]), crowd._walls)
-    assert way[0] > 0 and abs(way[1]) < 1e-9
