@@ -43,7 +43,7 @@ def held_in_doorways(sim: Simulator, walls: np.ndarray, doorways_xy: np.ndarray,
         if doors:
             people = np.column_stack([p, np.full(len(p), crowd.radius_m)])
             doors.update((k + 1) * AGENT_DT_S, AGENT_DT_S, p, people)
-        walking = ~crowd._arrived
+        walking = ~crowd.pausing
         slow = walking & (np.hypot(v[:, 0], v[:, 1]) < SLOW_M_S)
         near = np.min(np.linalg.norm(p[:, None] - doorways_xy[None], axis=2), axis=1) < NEAR_M
         spell = np.where(slow & near, spell + AGENT_DT_S, 0.0)

@@ -244,6 +244,11 @@ class Crowd:
         return self._target.copy()
 
     @property
+    def pausing(self) -> np.ndarray:
+        """(N,) read-only: who stands at the goal they reached, before setting out for the next."""
+        return read_only_view(self._arrived)
+
+    @property
     def time_s(self) -> float:
         """Simulated time since construction, seconds."""
         return self._time_s
