@@ -375,7 +375,8 @@ class NDConfig:
             turns with it, and it spins). On the office missions (seeds 1-32) 0.5 cut the time spent turning on the spot
             by 19 % and the missions' duration by 8 %, with as many interventions; in the contour-door experiment
             with the bar (2 cm grids, short-term memory) the robot pressed against the bar 7 times in 20 instead
-            of 2, so MRPT's floor stays the default.
+            of 2, so MRPT's floor stays the default; the navigator runs ND again with 0.5 only where MRPT's finds no
+            way (:attr:`simnav.navigation.navigator.NavigatorConfig.nd_fallback_floor_ratio`).
     """
 
     wide_gap_size_percent: float = 0.25

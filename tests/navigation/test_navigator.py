@@ -557,7 +557,7 @@ def test_no_turning_in_place_with_an_obstacle_inside_the_turning_circle(cache_di
 def test_paths_into_space_no_sensor_sees_are_not_free(cache_dir) -> None:
     """A wall of people 0.75 m ahead across a corridor, a target beyond it, a 240-degree lidar: limited to its
     view the robot waits; without, the paths that turn it around into the unseen space behind look free and it
-    turns."""
+    turns. (MRPT's ND alone: its fallback finds the paths turning sideways within the view, free for 0.75 m.)"""
     from simnav.navigation.sensing import ViewSector
 
     lidar = ViewSector(0.2, 0.0, 0.0, math.radians(120.0), 5.0)
@@ -567,7 +567,8 @@ def test_paths_into_space_no_sensor_sees_are_not_free(cache_dir) -> None:
     chosen = {}
     for name, limit in (("blind", False), ("view", True)):
         nav = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, max_acc_m_s2=1.0, max_ang_acc_rad_s2=3.0,
-                                  config=replace(CONFIG, limit_to_view=limit), cache_dir=cache_dir, view=[lidar])
+                                  config=replace(CONFIG, limit_to_view=limit, nd_fallback_floor_ratio=None),
+                                  cache_dir=cache_dir, view=[lidar])
         nav.set_target([4.0, 0.0])
         chosen[name] = [nav.step(0.05 * k, np.eye(3), points) for k in range(10)][-1]
     assert chosen["blind"].state == "navigating" and abs(chosen["blind"].w_rad_s) > 0.3
@@ -618,3 +619,25 @@ def test_a_low_wall_the_camera_no_longer_sees_is_remembered_and_stops_the_giraff
     with pytest.raises(ValueError, match="whole_band_view needs"):
         ReactiveNavigator3D(bands, 0.7, 1.0, cache_dir=cache_dir,
                             config=NavigatorConfig(memory_config=MemoryConfig(whole_band_view=True)))
+
+
+# TP-NavLimits of the alpha-A PTG (121 paths) of an office mission: the Giraff inside a doorway beside the open
+# leaf, heading 14 degrees right of its next waypoint; the paths turning right (20-41) free for 0.2-0.67 of the horizon
+_BESIDE_LEAF_ALPHA = np.array([0.02] * 19 + [0.03, 0.2, 0.2, 0.2, 0.21, 0.22, 0.22, 0.23, 0.24, 0.25, 0.26, 0.28, 0.3,
+                                             0.33, 0.35, 0.37, 0.4, 0.43, 0.47, 0.51, 0.56, 0.62, 0.67]
+                              + [0.05] * 3 + [0.04] * 28 + [0.03] * 2 + [0.02] * 24 + [0.03] * 2 + [0.04] * 13
+                              + [0.05, 0.05, 0.04] + [0.05] * 4)
+
+
+@pytest.mark.parametrize("fallback", [None, 0.5])
+def test_where_nd_finds_no_gap_its_fallback_takes_the_free_paths(cache_dir, fallback) -> None:
+    # MRPT's sweep stops at 0.6: above it only paths 40-41, a gap too narrow for ND's filters: no way found
+    nav = make_nav(cache_dir, num_paths=121, ref_distance_m=4.0, ptgs=("C", "alpha", "CS"),
+                   nd_fallback_floor_ratio=fallback)
+    blocked = np.full(121, 0.03)
+    best, direct = nav._best_candidate(np.array([2.37, 0.61]), [blocked, _BESIDE_LEAF_ALPHA, blocked], final=False)
+    assert not direct
+    if fallback is None:
+        assert best is None  # the robot would back away or wait
+    else:
+        assert best.ptg == 1 and 20 <= best.k <= 41 and best.speed > 0  # measured: path 40, free 0.62, speed 1
