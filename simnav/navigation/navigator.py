@@ -71,7 +71,7 @@ class NavigatorConfig:
             again on each with this ``crowded_floor_ratio`` before the robot backs away or waits (None: MRPT's ND
             alone). Beside an open door leaf, the paths turning away from it free for 0.2-0.67 of the horizon and
             MRPT's floor at 0.6, the gap of the freest two was too narrow for ND's filters, and the robot waited
-            27 s; office batches (seeds 1-32): 13 interventions with it against 18 (1 of them boxed in against 6).
+            27 s; office batches (seeds 1-48): 19 interventions with it against 29 (1 of them boxed in against 9).
         secure_distance_m: the secure-distance ramp: a candidate path's speed is the one from which the robot stops
             (``reaction_time_s`` at that speed, then braking at ``braking_m_s2``) this short of the first obstacle
             along the path; a path free for less than this gets speed 0, m. The ramp is in metres, not in
