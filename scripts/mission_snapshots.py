@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import shapely
 import yaml
 from pydantic import ValidationError
 
@@ -128,7 +129,7 @@ def draw(views: list[View], world, robot, span_m: float, radii: tuple[float, flo
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle, Polygon
 
-    from simnav.mission.plot import _patch
+    from simnav.mission.plot import polygon_patch
 
     cols = min(GRID_COLUMNS, len(views))
     rows = math.ceil(len(views) / cols)
@@ -136,11 +137,11 @@ def draw(views: list[View], world, robot, span_m: float, radii: tuple[float, flo
     FigureCanvasAgg(fig)
     axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
     statics = obstacle_polygons(world, 0.0, 2.0)
-    outline = max(robot.prisms, key=lambda p: abs(_area(np.asarray(p.polygon)))).polygon
+    outline = max(robot.prisms, key=lambda p: shapely.Polygon(p.polygon).area).polygon
     person_r, robot_r = radii
     for ax, v in zip(axes, views, strict=False):
         for poly in statics:
-            ax.add_patch(_patch(poly))
+            ax.add_patch(polygon_patch(poly))
         for seg in v.leaves:  # door leaves where they stand now
             ax.plot(seg[:, 0], seg[:, 1], color="saddlebrown", lw=4, solid_capstyle="butt", zorder=6)
         if len(v.points_xy):
@@ -174,11 +175,6 @@ def draw(views: list[View], world, robot, span_m: float, radii: tuple[float, flo
     fig.suptitle(title, fontsize=10)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=90)
-
-
-def _area(poly: np.ndarray) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
 def _times(args: argparse.Namespace, report: dict) -> tuple[list[float], str, str]:

@@ -713,7 +713,7 @@ def plot_runs(world: WorldSpec, paths: list[tuple[np.ndarray, str, list[dict]]],
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from simnav.mission.plot import _patch
+    from simnav.mission.plot import polygon_patch
     from simnav.world.footprint import obstacle_polygons
 
     colours = {"pass": "tab:green", "stop": "tab:blue", "hit": "tab:red", "other": "tab:orange"}
@@ -722,7 +722,7 @@ def plot_runs(world: WorldSpec, paths: list[tuple[np.ndarray, str, list[dict]]],
     axes = fig.subplots(1, 2 if zoom else 1, squeeze=False)[0]
     for ax in axes:
         for poly in obstacle_polygons(world, 0.0, 2.0):
-            ax.add_patch(_patch(poly))
+            ax.add_patch(polygon_patch(poly))
         for path, outcome, contacts in paths:
             ax.plot(path[:, 0], path[:, 1], color=colours.get(outcome, "tab:gray"), lw=0.8, alpha=0.8)
             ax.plot(*path[0], "o", color=colours.get(outcome, "tab:gray"), ms=3)

@@ -11,7 +11,7 @@ from simnav.world.footprint import obstacle_polygons
 from simnav.world.schema import WorldSpec
 
 
-def _patch(poly):
+def polygon_patch(poly):
     """A filled patch of a shapely polygon, holes included (a closed outer wall is a ring)."""
     from matplotlib.patches import PathPatch
     from matplotlib.path import Path as MplPath
@@ -43,7 +43,7 @@ def plot_mission(world: WorldSpec, roadmap: RoadmapGraph, path_xy: np.ndarray, r
     ax = fig.subplots()
     # Map: static obstacles seen by any part of a robot up to 2 m, and the roadmap
     for poly in obstacle_polygons(world, 0.0, 2.0):
-        ax.add_patch(_patch(poly))
+        ax.add_patch(polygon_patch(poly))
     for i, j in roadmap.edges:
         a, b = roadmap.nodes_xy[i], roadmap.nodes_xy[j]
         ax.plot([a[0], b[0]], [a[1], b[1]], color="0.85", lw=0.6, zorder=1)
