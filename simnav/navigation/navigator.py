@@ -139,14 +139,18 @@ class NavigatorConfig:
             when the robot is within ``give_way_check_m`` of the next such waypoint and, standing on it facing
             along the route, would overlap a sensed or remembered point for ``blocked_confirm_steps`` steps
             (someone stands in the doorway, often waiting to come out past the robot), it backs away straight at
-            ``give_way_speed_m_s`` while the space behind is free, until ``give_way_distance_m`` from the doorway,
-            and waits (state ``yielding``) until the doorway has been free for ``give_way_clear_s``. Without it
+            ``give_way_speed_m_s`` while the space behind is free (and, with ``give_way_on_trail``, on its own
+            trail), until ``give_way_distance_m`` from the doorway, and waits (state ``yielding``) until the
+            doorway has been free for ``give_way_clear_s``. Without it
             the robot turned back and forth on the spot in front of the doorway, the way in blocked and the
             corridor behind free, while the people inside waited for it to make room.
         give_way_check_m: look at the doorway from this close, m.
         give_way_distance_m: back away until this far from the doorway, m.
         give_way_speed_m_s: backward speed while yielding, m/s.
         give_way_clear_s: the doorway must look free this long before the robot goes on, s.
+        give_way_on_trail: yielding backs only onto the robot's own trail, as recovery does (``recovery_trail_s``):
+            the space behind a robot with a forward-looking lidar is mostly unseen, and backing wherever no point
+            was sensed ran it into the walls behind it (in the flat's 1 m hallway, 12 of 17 contacts).
     """
 
     ptgs: tuple[str, ...] = ("C", "alpha", "CS")
@@ -199,6 +203,7 @@ class NavigatorConfig:
     give_way_distance_m: float = 1.1
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
+    give_way_on_trail: bool = True
 
     def __post_init__(self) -> None:
         checks = [
@@ -643,13 +648,13 @@ class ReactiveNavigator3D:
                target_index: int) -> NavCommand:
         """Before a held doorway: back away straight while facing it, nearer than ``give_way_distance_m`` to it or
         to a flagged waypoint just before it (a doorway can be a run of narrow waypoints: the robot standing in the
-        first while someone holds the next one still blocks their way out) and the space behind is free; else
-        stop."""
+        first while someone holds the next one still blocks their way out), the space behind is free and, with
+        ``give_way_on_trail``, on the robot's own trail; else stop."""
         cfg = self.config
         spot_base = se2.transform_points(se2.inverse(T_odom_base), self._waypoints[doorway][None])[0]
         self._turning, self._blocked_since_s = False, None
         if float(spot_base[0]) > 0.0 and self._doorway_distance_m(T_odom_base, doorway) < cfg.give_way_distance_m \
-                and self._behind_is_free(band_xy):
+                and self._behind_is_free(band_xy) and (not cfg.give_way_on_trail or self._behind_is_trail(T_odom_base)):
             return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
         return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
 

@@ -351,17 +351,20 @@ def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
     return np.column_stack([x + radius * np.cos(a), y + radius * np.sin(a), np.full(24, 0.3)])
 
 
-def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float, seconds: float = 40.0):
+def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float, seconds: float = 40.0,
+                       steps_in_m: float = math.inf):
     """The robot at (2, start_y) facing +y drives through a 1 m doorway at (2, 1.1) (in a wall along y = 1.1) to
-    (2, 2.5), the doorway flagged to yield at; someone stands in it, at (2, 1.3), until ``leaves_s``. Returns the
-    distances to the doorway and the states while they stand there, and the last command."""
+    (2, 2.5), the doorway flagged to yield at; someone stands in it, at (2, 1.3), from when the robot is within
+    ``steps_in_m`` of the doorway (at once by default) until ``leaves_s``. Returns the distances to the doorway and
+    the states while they stand there, and the last command."""
     walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
     nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
                       allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
                       give_way=np.array([False, True, False]))
-    T, dt, distances, states = se2.from_xy_yaw(2.0, start_y, np.pi / 2), 0.05, [], []
+    T, dt, distances, states, stepped_in = se2.from_xy_yaw(2.0, start_y, np.pi / 2), 0.05, [], [], False
     for k in range(int(seconds / dt)):
-        there = k * dt < leaves_s
+        stepped_in = stepped_in or float(np.linalg.norm(T[:2, 2] - [2.0, 1.1])) <= steps_in_m
+        there = stepped_in and k * dt < leaves_s
         world = np.vstack([walls, _person(2.0, 1.3)]) if there else walls
         pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
         cmd = nav.step(k * dt, T, pts)
@@ -375,17 +378,32 @@ def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float
 
 
 def test_before_a_doorway_someone_stands_in_the_robot_makes_room_then_goes_through(cache_dir) -> None:
-    # from 0.5 m before the doorway (the approach waypoint): it backs away to give_way_distance_m and waits
+    # someone steps into the doorway when the robot, driving up, is 0.5 m before it: it backs away along the way
+    # it came to give_way_distance_m and waits
     nav = make_nav(cache_dir)
-    distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
+    distances, states, cmd = _through_a_doorway(nav, -0.3, leaves_s=20.0, steps_in_m=0.5)
     assert cmd.state == "reached"
     assert "yielding" in states and "turning" not in states
-    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.105 m
-    # without yielding it stays at the doorway, pressing towards the person
+    assert distances.min() <= 0.55 and distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.105 m
+    # without yielding, placed there, it stays at the doorway, pressing towards the person
     nav = make_nav(cache_dir, give_way=False)
     distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
     assert cmd.state == "reached" and "yielding" not in states
     assert distances.max() < 0.6  # measured: 0.50 m throughout
+
+
+def test_yielding_backs_only_where_the_robot_drove(cache_dir) -> None:
+    # placed 0.5 m before the taken doorway with no trail behind it (a mission's start, or after an intervention),
+    # the robot yields standing: its lidar does not see behind it, and no point sensed there does not make it free
+    nav = make_nav(cache_dir)
+    distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
+    assert cmd.state == "reached" and "yielding" in states
+    assert np.ptp(distances) < 0.05  # measured: 0.50 m throughout
+    # backing wherever no point is sensed (give_way_on_trail off) backs it blind
+    nav = make_nav(cache_dir, give_way_on_trail=False)
+    distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
+    assert cmd.state == "reached"
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.02
 
 
 def test_a_doorway_someone_stands_in_is_waited_for_from_where_the_robot_sees_it(cache_dir) -> None:
@@ -408,11 +426,13 @@ def test_before_a_doorway_of_two_narrow_nodes_the_robot_makes_room_from_the_firs
                       allowed_distance_m=np.array([0.15, 0.3, 0.3, 0.3, 0.3]),
                       headings_rad=np.array([np.pi / 2, np.nan, np.nan, np.nan, np.nan]),
                       give_way=np.array([False, True, False, True, False]))
-    T, dt = se2.from_xy_yaw(2.0, 0.6, np.pi / 2), 0.05
-    for k in range(300):
-        cmd = nav.step(k * dt, T, np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]]))
+    T, dt, stepped_in = se2.from_xy_yaw(2.0, -0.3, np.pi / 2), 0.05, False
+    for k in range(400):  # they step in when the robot, driving up, is 0.5 m before the first
+        stepped_in = stepped_in or float(np.linalg.norm(T[:2, 2] - [2.0, 1.1])) <= 0.5
+        seen = world if stepped_in else walls
+        cmd = nav.step(k * dt, T, np.column_stack([se2.transform_points(se2.inverse(T), seen[:, :2]), seen[:, 2]]))
         T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
-    assert cmd.state == "yielding"
+    assert stepped_in and cmd.state == "yielding"
     assert 1.1 - 0.02 <= 1.1 - T[1, 2] < 1.2  # measured: 1.10 m from the first (1.85 m from the second)
 
 
