@@ -32,7 +32,7 @@ sensing, pose source (ground truth) and contact bookkeeping are the runner's own
 
     python scripts/reproduce_nav_experiments.py [--runs 20] [--seed 0] [--timeout 90] [--variants ...]
         [--desk-visits 14] [--only door|desks|none] [--long KM [--long-chunk-km 0.5] [--long-nav-set KEY=VALUE]
-        [--flat-nav-set KEY=VALUE]] [--jobs N] [--out DIR] [--verbose]
+        [--flat-nav-set KEY=VALUE] [--long-worlds office,flat]] [--jobs N] [--out DIR] [--verbose]
 
 With ``--out DIR``: ``DIR/nav_experiments.md`` (every table, per-run and per-visit rows included),
 ``DIR/contour_door*_<nav>_<config>.png`` (every run's path), ``DIR/desks_<nav>.png`` and ``DIR/long_<world>/seed-<N>/``
@@ -466,12 +466,13 @@ class LongJob:
 
 
 def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out: Path | None,
-              navigator: dict[str, dict] | None = None) -> list[LongJob]:
+              navigator: dict[str, dict] | None = None, worlds: Sequence[str] = ("office", "flat")) -> list[LongJob]:
     """KM km split between the office and the flat as Tables 6.1 : 6.2, each share in continuous missions of at most
-    ``chunk_km`` km on consecutive seeds; the office's first. ``navigator`` maps a world to its navigator options."""
+    ``chunk_km`` km on consecutive seeds; the office's first. ``navigator`` maps a world to its navigator options;
+    ``worlds`` keeps only those worlds' jobs (the same jobs as in the whole run)."""
     total = sum(t["km"] for t in THESIS_LONG.values())
     jobs = []
-    for name in ("office", "flat"):
+    for name in [w for w in ("office", "flat") if w in worlds]:
         share = km * THESIS_LONG[name]["km"] / total
         n = max(1, math.ceil(share / chunk_km - 1e-9))
         options = tuple(sorted((navigator or {}).get(name, {}).items()))
@@ -769,11 +770,17 @@ def main() -> None:
     parser.add_argument("--flat-nav-set", action="append", default=[], metavar="KEY=VALUE",
                         help="a navigator option for the flat's long missions only, after --long-nav-set, e.g. "
                              "grid_resolution_m=0.02; repeatable")
+    parser.add_argument("--long-worlds", default="office,flat", metavar="office,flat",
+                        help="run only these worlds' share of the long missions (as in a whole run)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", type=Path, default=None, help="folder for markdown tables and plots")
     parser.add_argument("--verbose", action="store_true", help="also print the per-run and per-visit tables")
     args = parser.parse_args()
     navigator = long_navigator(parser, args.long_nav_set, args.flat_nav_set)  # a bad option fails before any run
+    long_worlds = [w.strip() for w in args.long_worlds.split(",") if w.strip()]
+    if not long_worlds or any(w not in THESIS_LONG for w in long_worlds):
+        parser.error(f"--long-worlds: expected a comma-separated list of {', '.join(THESIS_LONG)}, "
+                     f"got {args.long_worlds!r}")
     started = time.perf_counter()
     tables: list[Table] = []
     out = args.out
@@ -838,8 +845,8 @@ def main() -> None:
         people = [int(n) for n in args.long_people.split(",")]
         people = dict(zip(("office", "flat"), people if len(people) == 2 else people * 2, strict=True))
         t0 = time.perf_counter()
-        reports = run_jobs(run_long, long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator),
-                           args.jobs, "long missions")
+        jobs = long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator, long_worlds)
+        reports = run_jobs(run_long, jobs, args.jobs, "long missions")
         long = [long_table(reports), long_runs_table(reports)]
         for t in long if args.verbose else long[:1]:
             console.print(t)
