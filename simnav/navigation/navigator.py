@@ -26,8 +26,8 @@ free, then stops and waits (§6.C.6); it backs only onto the path it drove along
 heading) whose spot is taken, an open door leaf or someone standing there, counts as reached once the robot is
 close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly now and then to make
 room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands in (a waypoint
-flagged ``give_way``), the robot yields: it backs away to ``give_way_distance_m`` from the doorway, stops there and
-goes on once the doorway has been free for ``give_way_clear_s``. A target whose distance has not
+flagged ``give_way``), the robot yields: it backs away along its trail to ``give_way_distance_m`` from the doorway,
+stops there and goes on once the doorway has been free for ``give_way_clear_s``. A target whose distance has not
 improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
@@ -141,9 +141,9 @@ class NavigatorConfig:
             (someone stands in the doorway, often waiting to come out past the robot), it backs away straight at
             ``give_way_speed_m_s`` while the space behind is free (and, with ``give_way_on_trail``, on its own
             trail), until ``give_way_distance_m`` from the doorway, and waits (state ``yielding``) until the
-            doorway has been free for ``give_way_clear_s``. Without it
-            the robot turned back and forth on the spot in front of the doorway, the way in blocked and the
-            corridor behind free, while the people inside waited for it to make room.
+            doorway has been free for ``give_way_clear_s``. Without it the robot turned back and forth on the spot
+            in front of the doorway, the way in blocked and the corridor behind free, while the people inside
+            waited for it to make room.
         give_way_check_m: look at the doorway from this close, m.
         give_way_distance_m: back away until this far from the doorway, m.
         give_way_speed_m_s: backward speed while yielding, m/s.
