@@ -10,8 +10,10 @@ doorway) end when one of them, the one of lower priority after 1.5 s or either a
 moment. Anybody who comes less than 0.3 m closer to their next waypoint in 10 s re-plans from the nearest
 roadmap node in sight to a new goal, preferring one whose route turns back (two people or a person and a robot
 facing each other in a hallway too narrow to pass otherwise wait for ever); so does anybody blocked by a robot
-again soon after stepping aside for it. People keep ``circle_clearance_m`` of personal space from a robot (the
-round obstacles).
+again soon after stepping aside for it, and for ``ROBOT_AVOID_S`` after giving up on a robot they pick only goals
+whose route keeps clear of where it stood (else they kept coming back to it: in a flat, every room but the one
+they turned back into lies past the robot in the hallway). People keep ``circle_clearance_m`` of personal space
+from a robot (the round obstacles).
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ YIELD_SPEED_FACTOR = 0.5
 ROBOT_PASSING_GAP_M = 0.3
 REPLAN_ATTEMPTS = 4
 ROBOT_GIVE_UP_S = 8.0
+ROBOT_AVOID_S = 20.0  # after giving up on getting past a robot, routes keep clear of where it stood this long
 REPLAN_AHEAD_HALF_ANGLE_RAD = math.radians(60.0)
 OCCUPIED_MARGIN_M = 0.1  # a roadmap node closer than this to a robot's rim is taken by the robot
 # the rules as the kernels take them (simnav.agents.kernels.crowd_react)
@@ -180,6 +183,8 @@ class Crowd:
         self._vel = np.zeros_like(self._pos)
         self._speeds = np.clip(rng.normal(speed_mean_m_s, speed_std_m_s, len(self._pos)), 0.5, 2.0)
         self._time_s = 0.0
+        self._avoid = np.zeros((len(self._pos), 3))  # [x, y, radius] each keeps their routes clear of, m
+        self._avoid_until_s = np.full(len(self._pos), -math.inf)  # ... until this time, s
         self._init_plans(start_nodes)
         self._yaw = self._initial_yaws()
         self._yaw_rate = np.zeros(len(self._pos))
@@ -296,12 +301,14 @@ class Crowd:
         """Those blocked step back, those stuck head elsewhere: (E, 2) events [pedestrian, blocker, or −1 for
         stuck] of :func:`~simnav.agents.kernels.crowd_move`, with the (C, 3) ``circles`` and this step's
         ``walls``. Blocked by a robot again within ``ROBOT_GIVE_UP_S`` of stepping aside for one, a pedestrian
-        gives up getting past and heads elsewhere as if stuck."""
+        gives up getting past (:meth:`_give_up_on_robot`)."""
         n = len(self._pos)
         for k, blocker in events:
             robot_again = blocker >= n and self._time_s - self._robot_yield_t[k] <= ROBOT_GIVE_UP_S
             if blocker >= 0 and not robot_again:
                 self._step_back(int(k), int(blocker), circles)
+            elif robot_again:
+                self._give_up_on_robot(int(k), circles[blocker - n], walls)
             else:
                 self._replan_stuck(int(k), walls)
             if blocker >= n:
@@ -377,14 +384,19 @@ class Crowd:
         return yaws
 
     def _plan(self, k: int, start_node: int, attempts: int = 10) -> None:
-        """Send pedestrian k from ``start_node`` to a new random goal reachable from it."""
-        path = [start_node]
-        goal = start_node
-        for _ in range(attempts):
-            goal = self._roadmap.random_node(self._rng, exclude=start_node)
-            path = self._roadmap.shortest_path(start_node, goal)
-            if path:
-                break
+        """Send pedestrian k from ``start_node`` to a new random goal reachable from it (while k avoids a robot,
+        one whose route keeps clear of it, if any: :meth:`_give_up_on_robot`)."""
+        avoid = self._avoiding(k)
+        if avoid is not None:
+            goal, path = self._goal_clear_of(start_node, avoid)
+        else:
+            path = [start_node]
+            goal = start_node
+            for _ in range(attempts):
+                goal = self._roadmap.random_node(self._rng, exclude=start_node)
+                path = self._roadmap.shortest_path(start_node, goal)
+                if path:
+                    break
         if not path:
             goal, path = start_node, [start_node]
         self._goals[k] = goal
@@ -393,6 +405,19 @@ class Crowd:
         self._last_wp[k] = len(path) - 1
         self._arrived[k] = False
         self._set_target(k)
+
+    def _goal_clear_of(self, start_node: int, avoid: np.ndarray) -> tuple[int, list[int]]:
+        """A random goal other than ``start_node`` whose route from it keeps out of the circle ``avoid`` ``[x, y,
+        radius]`` (m) and that route; ``start_node`` and ``[]`` when there is none."""
+        nodes_xy = self._roadmap.nodes_xy
+        options = []
+        for goal in range(self._roadmap.node_count):
+            path = self._roadmap.shortest_path(start_node, goal) if goal != start_node else []
+            if path and _keeps_clear(nodes_xy[np.asarray(path)], avoid):
+                options.append((goal, path))
+        if not options:
+            return start_node, []
+        return options[int(self._rng.integers(len(options)))]
 
     def _set_target(self, k: int) -> None:
         self._target[k] = self._path_xy[k, self._wp[k]]
@@ -451,13 +476,21 @@ class Crowd:
         self._yield_s[k] = self._rng.uniform(*YIELD_DURATION_S)
         self._blocked_s[k] = 0.0
 
+    def _give_up_on_robot(self, k: int, circle: np.ndarray, walls: Segments) -> None:
+        """Pedestrian k gives up getting past the robot ``circle`` ``[x, y, radius]`` (m): for ``ROBOT_AVOID_S``
+        their routes keep ``ROBOT_PASSING_GAP_M`` clear of where it stands now, and they head elsewhere as if
+        stuck."""
+        self._avoid[k] = (circle[0], circle[1], circle[2] + self.radius_m + ROBOT_PASSING_GAP_M)
+        self._avoid_until_s[k] = self._time_s + ROBOT_AVOID_S
+        self._replan_stuck(k, walls)
+
     def _replan_stuck(self, k: int, walls: Segments) -> None:
         """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``): of up to
         ``REPLAN_ATTEMPTS`` random goals the first whose route does not lead on the way k was stuck (within
         ``REPLAN_AHEAD_HALF_ANGLE_RAD`` of it), else the last one: someone who cannot get past a robot in a
         hallway turns back."""
         _LOG.debug("pedestrian %d stuck at %s, re-planning", k, self._pos[k])
-        start, stuck_dir = self._nearest_visible_node(self._pos[k], walls), self._dirs[k].copy()
+        start, stuck_dir = self._nearest_visible_node(self._pos[k], walls, self._avoiding(k)), self._dirs[k].copy()
         for _ in range(REPLAN_ATTEMPTS):
             self._plan(k, start)
             if not self._route_leads(k, stuck_dir):
@@ -476,13 +509,25 @@ class Crowd:
                 return float(ahead @ direction) >= dist * math.cos(REPLAN_AHEAD_HALF_ANGLE_RAD)
         return False
 
-    def _nearest_visible_node(self, xy: np.ndarray, walls: Segments, candidates: int = 8) -> int:
-        """The nearest roadmap node in line of sight of ``xy`` among the closest few, else the nearest one."""
-        order = np.argsort(np.linalg.norm(self._roadmap.nodes_xy - xy, axis=1))
-        for node in order[:candidates]:
-            if _visible(xy, self._roadmap.nodes_xy[node], walls):
-                return int(node)
-        return int(order[0])
+    def _nearest_visible_node(self, xy: np.ndarray, walls: Segments, avoid: np.ndarray | None = None,
+                              candidates: int = 8) -> int:
+        """The nearest roadmap node in line of sight of ``xy`` among the closest few (and, given an ``avoid``
+        circle ``[x, y, radius]``, one outside it whose way from ``xy`` comes no closer to its centre, if any),
+        else the nearest one."""
+        nodes_xy = self._roadmap.nodes_xy
+        order = np.argsort(np.linalg.norm(nodes_xy - xy, axis=1))
+        seen = [int(node) for node in order[:candidates] if _visible(xy, nodes_xy[node], walls)]
+        if avoid is not None:
+            here = min(float(avoid[2]), float(np.linalg.norm(xy - avoid[:2])) - 1e-6)
+            away = [node for node in seen if _keeps_clear(nodes_xy[node][None], avoid)
+                    and _keeps_clear(np.stack([xy, nodes_xy[node]]), np.array([avoid[0], avoid[1], here]))]
+            seen = away or seen
+        return seen[0] if seen else int(order[0])
+
+    def _avoiding(self, k: int) -> np.ndarray | None:
+        """The circle ``[x, y, radius]`` pedestrian k's routes keep clear of now (see :meth:`_give_up_on_robot`),
+        or None."""
+        return self._avoid[k] if self._time_s < self._avoid_until_s[k] else None
 
     def _spawn(self, count: int, keep_out: np.ndarray) -> tuple[np.ndarray, list[int]]:
         placed: list[np.ndarray] = []
@@ -532,6 +577,16 @@ class Crowd:
         if len(keep_out) and np.any(np.linalg.norm(keep_out[:, :2] - xy, axis=1) < keep_out[:, 2] + r):
             return False
         return True
+
+
+def _keeps_clear(polyline_xy: np.ndarray, circle: np.ndarray) -> bool:
+    """Whether the (P, 2) polyline (m) stays outside the circle ``[x, y, radius]``."""
+    centre, radius = circle[:2], float(circle[2])
+    if len(polyline_xy) == 1:
+        return float(np.linalg.norm(polyline_xy[0] - centre)) >= radius
+    a, ab = polyline_xy[:-1], np.diff(polyline_xy, axis=0)
+    t = np.clip(np.einsum("ij,ij->i", centre - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0.0, 1.0)
+    return bool(np.all(np.linalg.norm(a + t[:, None] * ab - centre, axis=1) >= radius))
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:

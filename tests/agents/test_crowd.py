@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+import simnav.agents.crowd as crowd_module
 from simnav.agents import Crowd, RoadmapGraph, SocialForceParams
 
 DT = 0.02
@@ -239,3 +240,28 @@ def test_people_facing_a_robot_in_a_hallway_too_narrow_to_pass_turn_back() -> No
         longest_s = np.maximum(longest_s, near_s)
     assert np.all(longest_s > 3.0)  # both came up to the robot and were held up there ...
     assert np.all(longest_s < 25.0)  # ... but nobody stayed
+
+
+@pytest.mark.parametrize("avoid_s", [crowd_module.ROBOT_AVOID_S, 0.0])
+def test_who_gave_up_on_a_robot_keeps_away_from_it_for_a_while(monkeypatch, avoid_s: float) -> None:
+    # the hallway above, one person: turned back by the robot, they pick their next goals on their side of it only
+    # for ROBOT_AVOID_S (else the next random goal past the robot brings them straight back)
+    monkeypatch.setattr(crowd_module, "ROBOT_AVOID_S", avoid_s)
+    roadmap = RoadmapGraph(np.array([[0.0, 0.0], [3.0, 0.0], [12.0, 0.0], [15.0, 0.0]]), [(0, 1), (1, 2), (2, 3)])
+    hallway = np.array([[[-1.0, -0.5], [16.0, -0.5]], [[-1.0, 0.5], [16.0, 0.5]], [[-1.0, -0.5], [-1.0, 0.5]],
+                        [[16.0, -0.5], [16.0, 0.5]]])
+    crowd = Crowd(roadmap, hallway, 1, np.random.default_rng(0))
+    robot = np.array([[7.5, 0.0, 0.3]])
+    gave_up_s = back_s = None
+    for k in range(int(60.0 / DT)):
+        crowd.step(DT, circles=robot, circle_velocities=np.zeros((1, 2)))
+        gap = float(np.linalg.norm(crowd.positions_xy[0] - robot[0, :2])) - crowd.radius_m - robot[0, 2]
+        if gave_up_s is None and np.isfinite(crowd._avoid_until_s[0]):
+            gave_up_s = k * DT
+        if gave_up_s is not None and back_s is None and k * DT > gave_up_s + 5.0 and gap < 1.0:
+            back_s = k * DT
+    assert gave_up_s is not None  # held up, stepped aside into the wall, held up again: gave up
+    if avoid_s > 0:
+        assert back_s is None or back_s > gave_up_s + avoid_s
+    else:
+        assert back_s is not None and back_s < gave_up_s + 15.0

@@ -107,7 +107,8 @@ class ReferenceCrowd(Crowd):
         for k in np.nonzero((self._blocked_s >= 1.5) & outranked | (self._blocked_s >= 4.0))[0]:
             by_robot = blocker[k] >= n
             if by_robot and self._time_s - self._robot_yield_t[k] <= crowd_module.ROBOT_GIVE_UP_S:
-                self._replan_stuck(int(k), walls)  # held up by a robot again soon after stepping aside
+                # held up by a robot again soon after stepping aside: gives up, keeps clear of it for a while
+                self._give_up_on_robot(int(k), c[blocker[k] - n], walls)
             else:
                 self._step_back(int(k), int(blocker[k]), c)
             if by_robot:
