@@ -9,7 +9,9 @@ reset whenever one ends (resets are part of the time). Prints the median steps/s
   lidar);
 * ``SyncVectorEnv`` and ``AsyncVectorEnv`` (spawn) of 2 default envs (env-steps/s, i.e. both envs' steps);
 * batch missions (``simnav batch``: the default office mission for ``--mission-seconds`` simulated seconds each)
-  on 1 and on 2 local workers: simulated seconds per wall second, and the 1 -> 2 workers ratio.
+  on 1 and on 2 local workers, ``--batch-rounds`` times in turn after one short warm-up batch (the first mission on
+  a machine builds the navigator's collision grids and Numba's caches on disk, which would slow the first timed
+  batch down): simulated seconds per wall second, and the median of the rounds' 1 -> 2 workers ratios.
 
 Targets: >= 3000 steps/s lidar only in one process, >= 200 steps/s with depth, >= 1.8x from 1 to 2 workers.
 
@@ -21,13 +23,14 @@ round after round (a fresh env each time), and prints the median and the range o
 meet the target.
 
     python scripts/bench_env.py [--steps 400] [--repeats 5] [--runs 1] [--core C] [--missions 4]
-                                [--mission-seconds 20]
+                                [--mission-seconds 20] [--batch-rounds 3]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import multiprocessing
 import os
 import resource
 import statistics
@@ -97,6 +100,19 @@ def bench_vector(mode: str, steps: int, repeats: int, num_envs: int = 2) -> floa
     return rate
 
 
+def _pinned_default_env(core: int, steps: int, repeats: int) -> float:
+    os.sched_setaffinity(0, {core})
+    return bench_single(ENV, {}, steps, repeats)
+
+
+def bench_two_at_once(steps: int, repeats: int) -> tuple[float, list[float]]:
+    """Steps/s of the default env alone on core 1, then in two processes at once, pinned to cores 0 and 1: what
+    each core still gives when both are busy, the ceiling of any two-worker speed-up on this machine."""
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
+        alone = pool.apply(_pinned_default_env, (1, steps, repeats))
+        return alone, pool.starmap(_pinned_default_env, [(0, steps, repeats), (1, steps, repeats)])
+
+
 def bench_batch(workers: int, missions: int, seconds: float) -> tuple[float, float, float]:
     """(simulated seconds per wall second, wall time, cores the workers got) of ``missions`` office missions of
     ``seconds`` each; the cores are the workers' CPU time over the wall time (below ``workers`` when the machine is
@@ -150,6 +166,7 @@ def main() -> None:
                         help="core the single envs run on (-1: not pinned)")
     parser.add_argument("--missions", type=int, default=4, help="missions per batch run (0: no batch runs)")
     parser.add_argument("--mission-seconds", type=float, default=20.0, help="simulated seconds per mission")
+    parser.add_argument("--batch-rounds", type=int, default=3, help="rounds of the 1- and 2-worker batches")
     args = parser.parse_args()
     console = Console()
     load = os.getloadavg()
@@ -161,14 +178,14 @@ def main() -> None:
     where = f"core {args.core}" if args.core >= 0 else "not pinned"
     table = Table("configuration", "steps/s", "vs target", title=f"env steps/s ({what}, seed {SEED}; single envs: "
                                                                    f"{where})")
-    rates: dict[str, list[float]] = {name: [] for name, _, _ in SINGLE}
+    rates_single: dict[str, list[float]] = {name: [] for name, _, _ in SINGLE}
     with pinned(args.core):
         for _ in range(runs):
             for name, env_id, kwargs in SINGLE:
-                rates[name].append(bench_single(env_id, kwargs, args.steps, args.repeats))
+                rates_single[name].append(bench_single(env_id, kwargs, args.steps, args.repeats))
     for name, _, _ in SINGLE:
         target = TARGET_DEPTH if "depth" in name else TARGET_LIDAR
-        table.add_row(name, spread(rates[name]), verdict_runs(rates[name], target))
+        table.add_row(name, spread(rates_single[name]), verdict_runs(rates_single[name], target))
     for mode, label in (("sync", "SyncVectorEnv"), ("async", "AsyncVectorEnv (spawn)")):
         rate = bench_vector(mode, args.steps, args.repeats)
         table.add_row(f"{label} x 2, OfficeNav-v0 default, lidar", f"{rate:.0f}", "")
@@ -176,17 +193,28 @@ def main() -> None:
 
     if args.missions < 1:
         return finish(console)
-    batch = Table("workers", "simulated s / wall s", "wall time (s)", "cores used",
+    bench_batch(2, 2, 1.0)  # warm-up: collision grids and compiled kernels cached on disk
+    rounds = max(1, args.batch_rounds)
+    batch = Table("round", "workers", "simulated s / wall s", "wall time (s)", "cores used",
                   title=f"batch missions: {args.missions} office missions of {args.mission_seconds:g} s simulated "
                         f"(default mission: 10 people, lidar + depth camera)")
-    rates, cores = {}, {}
-    for workers in (1, 2):
-        rates[workers], wall, cores[workers] = bench_batch(workers, args.missions, args.mission_seconds)
-        batch.add_row(str(workers), f"{rates[workers]:.2f}", f"{wall:.1f}", f"{cores[workers]:.2f}")
+    ratios = []
+    for r in range(rounds):
+        rates, cores = {}, {}
+        for workers in (1, 2):
+            rates[workers], wall, cores[workers] = bench_batch(workers, args.missions, args.mission_seconds)
+            batch.add_row(str(r + 1), str(workers), f"{rates[workers]:.2f}", f"{wall:.1f}", f"{cores[workers]:.2f}")
+        ratios.append(rates[2] / rates[1])
     console.print(batch)
-    ratio = rates[2] / rates[1]
-    console.print(f"1 -> 2 workers: {ratio:.2f}x ({verdict(ratio, TARGET_SCALING)}); the workers got "
-                  f"{cores[1]:.2f} and {cores[2]:.2f} cores (CPU time / wall time)")
+    ratio = statistics.median(ratios)
+    console.print(f"1 -> 2 workers: {ratio:.2f}x, median of {rounds} rounds ({verdict(ratio, TARGET_SCALING)}; "
+                  f"rounds: {', '.join(f'{x:.2f}' for x in ratios)}); the cores column is the workers' CPU time over "
+                  "the wall time")
+    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) >= 2:
+        alone, both = bench_two_at_once(args.steps, args.repeats)
+        console.print(f"ceiling: the default env alone on core 1 made {alone:.0f} steps/s; two copies at once on "
+                      f"cores 0 and 1 made {both[0]:.0f} and {both[1]:.0f}, so two busy cores give at most "
+                      f"{sum(both) / alone:.2f}x one")
     finish(console)
 
 
