@@ -210,9 +210,10 @@ def _info(sim, kind: str, people: int, seed: int, frames: int) -> dict:
 Sink = Callable[[object, RGBDFrame, np.ndarray], None]  # (simulator, frame, T_world_camera)
 
 
-def _record_robot(seconds: float, seed: int, people: int, sink: Sink) -> dict:
-    """The camera on the robot following the roadmap (frames from the camera's own 30 Hz schedule)."""
-    robot, sim = _simulator(people, seed, [])
+def _record_robot(seconds: float, seed: int, people: int, sink: Sink | None) -> dict:
+    """The camera on the robot following the roadmap (frames from the camera's own 30 Hz schedule); with no
+    ``sink``, the same run with the camera off (the people and the robot move as when it renders)."""
+    robot, sim = _simulator(people, seed, [] if sink else ["sensors.camera.rate_hz=0.001"])
     frames = 0
     with sim:
         follower = _follower(sim, robot, seed)
@@ -220,7 +221,7 @@ def _record_robot(seconds: float, seed: int, people: int, sink: Sink) -> dict:
         def take(readings) -> int:
             n = 0
             for r in readings:
-                if isinstance(r, RGBDFrame) and r.sensor == CAMERA and r.stamp_s <= seconds + 1e-9:
+                if sink and isinstance(r, RGBDFrame) and r.sensor == CAMERA and r.stamp_s <= seconds + 1e-9:
                     sink(sim, r, sim.T_world_base_at(r.stamp_s) @ r.T_base_sensor)
                     n += 1
             return n
@@ -242,8 +243,9 @@ def handheld_mount(t_s: float) -> np.ndarray:
     return se3.from_rpy(roll, pitch, yaw, xyz) @ se3.from_rotation_translation(R_BODY_OPTICAL)
 
 
-def _record_handheld(seconds: float, seed: int, people: int, sink: Sink) -> dict:
-    """A free camera: the robot drives the roadmap and the camera is moved on it before every frame."""
+def _record_handheld(seconds: float, seed: int, people: int, sink: Sink | None) -> dict:
+    """A free camera: the robot drives the roadmap and the camera is moved on it before every frame; with no
+    ``sink``, the same run without the frames."""
     import mujoco
 
     overrides = ["drive.max_v_m_s=0.5", "drive.max_w_deg_s=45", "sensors.camera.rate_hz=0.001"]
@@ -254,6 +256,9 @@ def _record_handheld(seconds: float, seed: int, people: int, sink: Sink) -> dict
         sim.flush()  # the scheduled frame of t = 0 is rendered before the camera is moved
         follower = _follower(sim, robot, seed)
         for _ in range(int(math.floor(seconds * FRAME_RATE_HZ + 1e-6)) + 1):
+            if sink is None:
+                sim.step(*follower.command(*sim.pose_xy_yaw))
+                continue
             T = handheld_mount(sim.time_s)
             quat = np.zeros(4)
             mujoco.mju_mat2Quat(quat, (T[:3, :3] @ R_MUJOCOCAM_OPTICAL.T).ravel())

@@ -2,7 +2,8 @@
 
 The crowd changes its plans only after such a give-up (``simnav.agents.crowd.ROBOT_AVOID_S``), so a sequence with
 none is the same with and without that rule. Simulates the people and the robot of every candidate seed of
-``scripts/bench_rgbd_odometry.py`` (robot and hand-held, 1-5 people) without rendering and prints the counts.
+``scripts/bench_rgbd_odometry.py`` (robot and hand-held, 1-5 people) with the bench's own drive loops, without
+rendering, and prints the counts.
 
     python scripts/crowd_giveups_in_bench_sequences.py [--seeds 0 10] [--candidates 4] [--seconds 10]
 """
@@ -29,23 +30,6 @@ def _counting(give_up):
     return wrapper
 
 
-def _robot(seconds: float, seed: int, people: int) -> None:
-    robot, sim = bench._simulator(people, seed, ["sensors.camera.rate_hz=0.001"])
-    with sim:
-        follower = bench._follower(sim, robot, seed)
-        while sim.time_s < seconds - 1e-9:
-            sim.step(*follower.command(*sim.pose_xy_yaw))
-
-
-def _handheld(seconds: float, seed: int, people: int) -> None:
-    overrides = ["drive.max_v_m_s=0.5", "drive.max_w_deg_s=45", "sensors.camera.rate_hz=0.001"]
-    robot, sim = bench._simulator(people, seed, overrides, physics_dt_s=1 / 300, control_dt_s=1 / bench.FRAME_RATE_HZ)
-    with sim:
-        follower = bench._follower(sim, robot, seed)
-        for _ in range(int(seconds * bench.FRAME_RATE_HZ) + 1):
-            sim.step(*follower.command(*sim.pose_xy_yaw))
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 10], help="the bench's --seed values")
@@ -55,12 +39,12 @@ def main() -> None:
     crowd_module.Crowd._give_up_on_robot = _counting(crowd_module.Crowd._give_up_on_robot)
     total = 0
     for base in args.seeds:
-        for kind, record in (("robot", _robot), ("handheld", _handheld)):
+        for kind, record in (("robot", bench._record_robot), ("handheld", bench._record_handheld)):
             for people in range(1, 6):
                 counts = []
                 for seed in range(base, base + args.candidates):
                     _COUNT[0] = 0
-                    record(args.seconds, seed, people)
+                    record(args.seconds, seed, people, None)
                     counts.append(_COUNT[0])
                 total += sum(counts)
                 print(f"--seed {base}: {kind}-people{people}, give-ups per candidate seed: {counts}", flush=True)
