@@ -101,8 +101,8 @@ def bench_vector(mode: str, steps: int, repeats: int, num_envs: int = 2) -> floa
 
 
 def _pinned_default_env(core: int, steps: int, repeats: int) -> float:
-    os.sched_setaffinity(0, {core})
-    return bench_single(ENV, {}, steps, repeats)
+    with pinned(core):
+        return bench_single(ENV, {}, steps, repeats)
 
 
 def bench_two_at_once(steps: int, repeats: int) -> tuple[float, list[float]]:
