@@ -3,10 +3,11 @@
 Replays a mission from its folder (``world.yaml``, ``robot.yaml`` and ``mission.yaml``, as ``simnav mission`` and
 ``simnav batch`` write them; the same settings give the same run) and draws, at each chosen time, the map around
 the robot: walls and furniture; the door leaves where they are; every person as a circle of their body (gold while
-they pause at a goal) with their index, an arrow of their velocity and a dashed line to the waypoint they walk to;
-the other robots; the robot's outline (its largest section) at the true pose, with the route's waypoints (the one
-aimed at ringed) and the obstacle points above the floor the navigator was given; in each title, the navigator's
-state and command. One PNG holds the grid of views.
+they pause at a goal, pink while they wait before a single-file stretch a robot is in) with their index, an arrow
+of their velocity and a dashed line to the waypoint they walk to; the other robots; the robot's outline (its
+largest section) at the true pose, with the route's waypoints (the one aimed at ringed) and the obstacle points
+above the floor the navigator was given; in each title, the navigator's state and command. One PNG holds the
+grid of views.
 
     python scripts/mission_snapshots.py MISSION_DIR [--intervention 1] [--before 30] [--every 3] [--span 6]
     python scripts/mission_snapshots.py MISSION_DIR --times 52 55 58 [--out views.png]
@@ -50,6 +51,7 @@ class View:
     people_vel: np.ndarray
     people_target: np.ndarray
     people_pausing: np.ndarray
+    people_waiting: np.ndarray
     robots_xy: np.ndarray
     leaves: np.ndarray
     points_xy: np.ndarray
@@ -102,6 +104,7 @@ class Recorder:
             people_vel=crowd.velocities_xy.copy() if crowd is not None else empty,
             people_target=crowd.waypoints_xy if crowd is not None else empty,
             people_pausing=crowd.pausing.copy() if crowd is not None else np.zeros(0, dtype=bool),
+            people_waiting=crowd.waiting.copy() if crowd is not None else np.zeros(0, dtype=bool),
             robots_xy=wanderers.positions_xy.copy() if wanderers is not None else empty,
             leaves=sim.doors.segments_xy() if sim.doors is not None else np.zeros((0, 2, 2)),
             points_xy=points, waypoints=np.asarray(frame.waypoints_world).copy(),
@@ -146,9 +149,10 @@ def draw(views: list[View], world, robot, span_m: float, radii: tuple[float, flo
             ax.plot(seg[:, 0], seg[:, 1], color="saddlebrown", lw=4, solid_capstyle="butt", zorder=6)
         if len(v.points_xy):
             ax.plot(v.points_xy[:, 0], v.points_xy[:, 1], ".", color="tab:red", ms=1.5, zorder=3)
-        for i, (p, vel, tgt, pausing) in enumerate(zip(v.people_xy, v.people_vel, v.people_target, v.people_pausing,
-                                                        strict=False)):
-            colour = "gold" if pausing else "tab:orange"  # pausing at a goal they reached
+        for i, (p, vel, tgt, pausing, waiting) in enumerate(zip(v.people_xy, v.people_vel, v.people_target,
+                                                                 v.people_pausing, v.people_waiting, strict=False)):
+            # pausing at a goal they reached, waiting before a single-file stretch a robot is in, walking
+            colour = "gold" if pausing else "tab:pink" if waiting else "tab:orange"
             ax.add_patch(Circle(p, person_r, facecolor=colour, edgecolor="k", lw=0.5, alpha=0.8, zorder=4))
             ax.plot([p[0], tgt[0]], [p[1], tgt[1]], color="darkorange", lw=0.8, ls="--", zorder=3)
             ax.plot(*tgt, "x", color="darkorange", ms=4, zorder=3)

@@ -14,6 +14,14 @@ again soon after stepping aside for it, and for ``ROBOT_AVOID_S`` after giving u
 whose route keeps clear of where it stood (else they kept coming back to it: in a flat, every room but the one
 they turned back into lies past the robot in the hallway). People keep ``circle_clearance_m`` of personal space
 from a robot (the round obstacles).
+
+People can also wait before a single-file stretch that a robot is in (``single_file_wait_s`` > 0; off by default,
+as it did not lower the flat's interventions, see the README): someone about to leave
+a roadmap node with room to pass a robot (at least ``SINGLE_FILE_CLEARANCE_M`` from every wall) for one without
+(a doorway, a flat's 1 m hallway) stands where they are, at least ``SINGLE_FILE_MARGIN_M`` before it, while a
+robot is on their route through the stretch, up to the next node with room; after waiting that long they go
+anyway (and do not wait again for ``SINGLE_FILE_COOLDOWN_S``). Without the rule they walk into the hallway
+towards a robot coming along it, and neither can pass.
 """
 
 from __future__ import annotations
@@ -63,6 +71,9 @@ ROBOT_GIVE_UP_S = 8.0
 ROBOT_AVOID_S = 20.0  # after giving up on getting past a robot, routes keep clear of where it stood this long
 REPLAN_AHEAD_HALF_ANGLE_RAD = math.radians(60.0)
 OCCUPIED_MARGIN_M = 0.1  # a roadmap node closer than this to a robot's rim is taken by the robot
+SINGLE_FILE_CLEARANCE_M = 0.75  # a roadmap node closer than this to a wall lies in a single-file stretch
+SINGLE_FILE_MARGIN_M = 1.0  # people wait for a robot at least this far before a single-file stretch's first node
+SINGLE_FILE_COOLDOWN_S = 10.0  # after waiting that long, no waiting again for this long
 # the rules as the kernels take them (simnav.agents.kernels.crowd_react)
 _TURNING = (YAW_TIME_CONSTANT_S, MAX_YAW_RATE_RAD_S, MOVING_SPEED_M_S)
 _BLOCKING = (BLOCKING_DISTANCE_M, math.cos(BLOCKING_HALF_ANGLE_RAD), BLOCKED_SPEED_M_S, YIELD_AFTER_S,
@@ -150,6 +161,8 @@ class Crowd:
         speed_mean_m_s: mean desired speed; speeds ~ N(mean, std) clipped to [0.5, 2.0] m/s.
         speed_std_m_s: standard deviation of the desired speed.
         keep_out: (K, 3) circles ``[x, y, radius]`` (metres) where nobody may spawn, e.g. around the robot.
+        single_file_wait_s: longest wait before a single-file stretch a robot is in, seconds (0, the default:
+            nobody waits; see the module docstring).
 
     Raises:
         ValueError: when a pedestrian cannot be placed near any roadmap node or edge.
@@ -165,7 +178,10 @@ class Crowd:
         speed_mean_m_s: float = 1.34,
         speed_std_m_s: float = 0.26,
         keep_out: np.ndarray | None = None,
+        single_file_wait_s: float = 0.0,
     ) -> None:
+        if not single_file_wait_s >= 0.0:
+            raise ValueError(f"single_file_wait_s must be >= 0 s, got {single_file_wait_s}")
         self._roadmap = roadmap
         self._params = params
         self._rng = rng
@@ -178,6 +194,8 @@ class Crowd:
         self._circle_pad = np.array([0.0, 0.0, params.circle_clearance_m])  # added to the circles (read only)
         self._circle_pad.flags.writeable = False
         self._init_grids()
+        self._single_file_wait_s = float(single_file_wait_s)
+        self._roomy = _node_clearances_m(roadmap.nodes_xy, self._walls) >= SINGLE_FILE_CLEARANCE_M
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
         self._pos, start_nodes = self._spawn(int(count), keep)
         self._vel = np.zeros_like(self._pos)
@@ -196,6 +214,9 @@ class Crowd:
         self._blocked_s = np.zeros(len(self._pos))
         self._yield_s = np.zeros(len(self._pos))
         self._yield_dir = np.zeros((len(self._pos), 2))
+        self._waited_s = np.zeros(len(self._pos))  # how long each has waited before a single-file stretch, s
+        self._wait_again_s = np.full(len(self._pos), -math.inf)  # ... and when they may wait again, s
+        self._waiting = np.zeros(len(self._pos), dtype=bool)
 
     @property
     def count(self) -> int:
@@ -254,6 +275,11 @@ class Crowd:
         return read_only_view(self._arrived)
 
     @property
+    def waiting(self) -> np.ndarray:
+        """(N,) read-only: who waited, over the last step, before a single-file stretch a robot is in."""
+        return read_only_view(self._waiting)
+
+    @property
     def time_s(self) -> float:
         """Simulated time since construction, seconds."""
         return self._time_s
@@ -292,8 +318,9 @@ class Crowd:
         if len(circ) and self._circle_pad[2] > 0:  # personal space around robots
             circ = circ + self._circle_pad
         self._update_plans(dt_s, circ)
+        standing = self._standing(dt_s, circ)
         dyn = self._moving_segments(dynamic_segments)
-        events = self._move(dt_s, dyn, circ, circ_vel, has_circles)
+        events = self._move(dt_s, dyn, circ, circ_vel, has_circles, standing)
         if len(events):
             self._unblock(events, circ, self._walls if len(dyn) == 0 else self._extended)
 
@@ -329,17 +356,18 @@ class Crowd:
         return dyn
 
     def _move(self, dt_s: float, dyn: np.ndarray, circ: np.ndarray, circ_vel: np.ndarray,
-              has_circles: bool) -> np.ndarray:
+              has_circles: bool, standing: np.ndarray) -> np.ndarray:
         """Social forces, the semi-implicit Euler step, the non-overlap projection, then yaws, face-offs and stuck
         pedestrians, in one kernel call: new positions, velocities, yaws and yaw rates; returns the (E, 2) events
         [pedestrian, blocker, or −1 for stuck] left to :meth:`_unblock`.
 
-        ``dyn``: (D, 2, 2) moving segments; ``has_circles`` False: ``circ`` is (0, 3).
+        ``dyn``: (D, 2, 2) moving segments; ``has_circles`` False: ``circ`` is (0, 3); ``standing`` (N,) bool: who
+        stands this step (pausing at a goal or waiting, :meth:`_standing`).
         """
         walls = self._walls_args if len(dyn) == 0 else self._extended_args
         self._pos, self._vel, self._yaw, self._yaw_rate, events = crowd_move(
             (self._pos, self._vel, self._yaw),
-            (self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds, self._arrived),
+            (self._dirs, self._target, self._yield_s, self._yield_dir, self._speeds, standing),
             (self._blocked_s, self._priority, self._anchor_xy, self._anchor_t, self._anchor_goal),
             (self._near_cells, walls, self._fallback, dyn, circ, circ_vel, has_circles),
             self._kernel_params, self._rules, self._time_s, dt_s,
@@ -364,6 +392,7 @@ class Crowd:
         n = len(self._pos)
         self._goals = np.zeros(n, dtype=np.int64)
         self._path_xy = np.zeros((n, self._roadmap.node_count, 2))  # path k: the first _last_wp[k] + 1 nodes
+        self._path_nodes = np.zeros((n, self._roadmap.node_count), dtype=np.int64)  # ... their node indices
         self._wp = np.zeros(n, dtype=np.int64)
         self._last_wp = np.zeros(n, dtype=np.int64)
         self._target = self._pos.copy()
@@ -401,6 +430,7 @@ class Crowd:
             goal, path = start_node, [start_node]
         self._goals[k] = goal
         self._path_xy[k, : len(path)] = self._roadmap.nodes_xy[np.asarray(path)]
+        self._path_nodes[k, : len(path)] = path
         self._wp[k] = 0
         self._last_wp[k] = len(path) - 1
         self._arrived[k] = False
@@ -421,6 +451,47 @@ class Crowd:
 
     def _set_target(self, k: int) -> None:
         self._target[k] = self._path_xy[k, self._wp[k]]
+
+    def _standing(self, dt_s: float, circles: np.ndarray) -> np.ndarray:
+        """(N,) bool: who stands this step: those pausing at a goal, and those waiting before a single-file
+        stretch that one of the (C, 3) ``circles`` (robots, m) is in (see the module docstring; the waits run
+        up here)."""
+        waiting = self._waiting_for_robots(circles)
+        self._waited_s = np.where(waiting, self._waited_s + dt_s, 0.0)
+        done = self._waited_s > self._single_file_wait_s
+        if np.any(done):
+            self._wait_again_s[done] = self._time_s + SINGLE_FILE_COOLDOWN_S
+            self._waited_s[done] = 0.0
+            waiting &= ~done
+        self._waiting = waiting
+        return self._arrived | waiting if np.any(waiting) else self._arrived
+
+    def _waiting_for_robots(self, circles: np.ndarray) -> np.ndarray:
+        """(N,) bool: who would wait now before a single-file stretch one of the (C, 3) ``circles`` is in."""
+        n = len(self._pos)
+        waiting = np.zeros(n, dtype=bool)
+        if self._single_file_wait_s <= 0.0 or len(circles) == 0 or n == 0:
+            return waiting
+        rows, wp = np.arange(n), self._wp
+        before = self._path_nodes[rows, np.maximum(wp - 1, 0)]
+        ahead = self._path_nodes[rows, wp]
+        gap = self._target - self._pos
+        about_to_enter = ((wp >= 1) & ~self._arrived & self._roomy[before] & ~self._roomy[ahead]
+                          & (self._time_s >= self._wait_again_s)
+                          & (np.einsum("ij,ij->i", gap, gap) >= SINGLE_FILE_MARGIN_M**2))
+        for k in np.nonzero(about_to_enter)[0]:
+            stretch = self._single_file_stretch(int(k))
+            reach = circles[:, 2] + self.radius_m
+            waiting[k] = any(not _keeps_clear(stretch, np.array([c[0], c[1], r])) for c, r in zip(circles, reach))
+        return waiting
+
+    def _single_file_stretch(self, k: int) -> np.ndarray:
+        """(P, 2) the nodes of pedestrian k's route from their waypoint up to, not including, the next node with
+        room to pass a robot (or to their goal), metres."""
+        end, last = int(self._wp[k]), int(self._last_wp[k])
+        while end < last and not self._roomy[self._path_nodes[k, end + 1]]:
+            end += 1
+        return self._path_xy[k, self._wp[k] : end + 1]
 
     def _update_plans(self, dt_s: float, circles: np.ndarray) -> None:
         """Pauses run down and new goals; waypoints reached, counting a robot (in (C, 3) ``circles``) standing on
@@ -587,6 +658,15 @@ def _keeps_clear(polyline_xy: np.ndarray, circle: np.ndarray) -> bool:
     a, ab = polyline_xy[:-1], np.diff(polyline_xy, axis=0)
     t = np.clip(np.einsum("ij,ij->i", centre - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0.0, 1.0)
     return bool(np.all(np.linalg.norm(a + t[:, None] * ab - centre, axis=1) >= radius))
+
+
+def _node_clearances_m(nodes_xy: np.ndarray, walls: Segments) -> np.ndarray:
+    """(K,) distance from each of the (K, 2) nodes (m) to the nearest wall segment, metres (inf without walls)."""
+    if len(walls) == 0:
+        return np.full(len(nodes_xy), math.inf)
+    ped, seg = all_pairs(len(nodes_xy), len(walls))
+    _, dist = walls.offsets(np.asarray(nodes_xy, dtype=float), ped, seg)
+    return dist.reshape(len(nodes_xy), len(walls)).min(axis=1)
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:

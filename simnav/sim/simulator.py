@@ -154,7 +154,7 @@ class Simulator:
         try:
             self.crowd = Crowd(self.roadmap, self._walls_xy, self.pedestrian_count, self._rng_crowd,
                                speed_mean_m_s=agents.speed_mean_m_s, speed_std_m_s=agents.speed_std_m_s,
-                               keep_out=keep_out)
+                               keep_out=keep_out, single_file_wait_s=agents.single_file_wait_s)
         except ValueError as err:
             raise SimnavError(f"world '{self.world.name}': {err}; try fewer people (--agents)") from None
         keep_out = np.vstack([keep_out, np.column_stack([self.crowd.positions_xy,

@@ -144,6 +144,7 @@ class Agents(FrozenModel):
     speed_mean_m_s: Positive = 1.34
     speed_std_m_s: NonNegative = 0.26
     robot_speed_m_s: Positive = 0.5
+    single_file_wait_s: NonNegative = 0.0  # people wait this long at most before a single-file stretch a robot is in
 
 
 class OfficeGenerator(FrozenModel):

@@ -265,3 +265,44 @@ def test_who_gave_up_on_a_robot_keeps_away_from_it_for_a_while(monkeypatch, avoi
         assert back_s is None or back_s > gave_up_s + avoid_s
     else:
         assert back_s is not None and back_s < gave_up_s + 15.0
+
+
+# a 4 x 4 m room (its node has room to pass a robot) opening onto a 1 m hallway (single file) along +x
+ROOM_AND_HALLWAY_WALLS = np.array(
+    [
+        [[0.0, -2.0], [4.0, -2.0]], [[4.0, -2.0], [4.0, -0.5]], [[4.0, -0.5], [12.0, -0.5]],
+        [[12.0, -0.5], [12.0, 0.5]], [[12.0, 0.5], [4.0, 0.5]], [[4.0, 0.5], [4.0, 2.0]], [[4.0, 2.0], [0.0, 2.0]],
+        [[0.0, 2.0], [0.0, -2.0]],
+    ]
+)
+
+
+@pytest.mark.parametrize(("robot_xy", "wait_s", "waits"), [((8.0, 0.0), 20.0, True), ((1.0, 1.3), 20.0, False),
+                                                          ((8.0, 0.0), 0.0, False)])
+def test_people_wait_before_a_single_file_hallway_while_a_robot_is_in_it(robot_xy, wait_s: float,
+                                                                         waits: bool) -> None:
+    # someone leaving the room for the hallway stands in the room while a robot stands in the hallway, for at most
+    # single_file_wait_s; a robot elsewhere in the room, or the rule off (0 s): they walk straight in
+    roadmap = RoadmapGraph(np.array([[2.0, 0.0], [5.0, 0.0], [8.0, 0.0], [11.0, 0.0]]), [(0, 1), (1, 2), (2, 3)])
+    crowd = Crowd(roadmap, ROOM_AND_HALLWAY_WALLS, 1, np.random.default_rng(4), keep_out=np.array([[8.0, 0.0, 3.8]]),
+                  single_file_wait_s=wait_s)
+    robot = np.array([[*robot_xy, 0.3]])
+    entered_s, waited_s = None, 0.0
+    for k in range(int(40.0 / DT)):
+        crowd.step(DT, circles=robot, circle_velocities=np.zeros((1, 2)))
+        if entered_s is None:
+            waited_s += DT * float(crowd.waiting[0])
+        if entered_s is None and crowd.positions_xy[0, 0] > 4.0:
+            entered_s = k * DT
+    assert entered_s is not None  # the wait ends
+    if waits:
+        assert waited_s == pytest.approx(wait_s, abs=0.1)
+        assert entered_s > wait_s
+    else:
+        assert waited_s == 0.0 and entered_s < 5.0
+
+
+def test_a_negative_single_file_wait_is_refused() -> None:
+    with pytest.raises(ValueError, match="single_file_wait_s"):
+        Crowd(RoadmapGraph(np.array([[0.0, 0.0], [1.0, 0.0]]), [(0, 1)]), np.zeros((0, 2, 2)), 1,
+              np.random.default_rng(0), single_file_wait_s=-1.0)

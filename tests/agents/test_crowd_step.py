@@ -39,8 +39,9 @@ class ReferenceCrowd(Crowd):
         if circles is not None and len(circles):  # personal space around robots
             circles = np.asarray(circles, dtype=float).reshape(-1, 3) + [0.0, 0.0, self._params.circle_clearance_m]
         self._reference_plans(dt_s, circles)
+        standing = self._standing(dt_s, np.zeros((0, 3)) if circles is None else circles)
         drive = _desired_update(self._dirs, self._target, self._pos, self._yield_s, self._yield_dir, self._speeds,
-                                self._arrived, crowd_module.YIELD_SPEED_FACTOR)
+                                standing, crowd_module.YIELD_SPEED_FACTOR)
         segs, ped, seg = self._reference_pairs(self._pos, dynamic_segments)
         acc = social_force_pairs_reference(self._pos, self._vel, self._dirs, drive, segs, ped, seg, circles,
                                            circle_velocities, self._params)
@@ -52,8 +53,8 @@ class ReferenceCrowd(Crowd):
         self._vel = (resolved - self._pos) / dt_s
         self._pos = resolved
         self._reference_yaws(dt_s)
-        self._reference_blocking(dt_s, circles, segs)
-        self._reference_stuck(segs)
+        self._reference_blocking(dt_s, circles, segs, standing)
+        self._reference_stuck(segs, standing)
 
     def _reference_pairs(self, points, dynamic_segments):
         segs = self._walls
@@ -92,7 +93,7 @@ class ReferenceCrowd(Crowd):
         self._yaw = wrap_angle(self._yaw + rate * dt_s)
         self._yaw_rate = rate
 
-    def _reference_blocking(self, dt_s, circles, walls):
+    def _reference_blocking(self, dt_s, circles, walls, standing):
         self._yield_s = np.maximum(self._yield_s - dt_s, 0.0)
         n, c = len(self._pos), np.zeros((0, 3)) if circles is None else np.asarray(circles, dtype=float)
         if n == 0 or n + len(c) < 2:
@@ -101,7 +102,7 @@ class ReferenceCrowd(Crowd):
         reach = np.concatenate([np.full(n, 1.0), 1.0 + c[:, 2] - self.radius_m])
         in_way, blocker = closest_in_way(self._pos, self._dirs, others, reach, math.cos(math.radians(60.0)))
         slow = np.linalg.norm(self._vel, axis=1) < crowd_module.BLOCKED_SPEED_M_S
-        blocked = slow & ~self._arrived & (self._yield_s <= 0.0) & in_way
+        blocked = slow & ~standing & (self._yield_s <= 0.0) & in_way
         self._blocked_s = np.where(blocked, self._blocked_s + dt_s, 0.0)
         outranked = self._priority < np.concatenate([self._priority, np.full(len(c), np.inf)])[blocker]
         for k in np.nonzero((self._blocked_s >= 1.5) & outranked | (self._blocked_s >= 4.0))[0]:
@@ -114,11 +115,11 @@ class ReferenceCrowd(Crowd):
             if by_robot:
                 self._robot_yield_t[k] = self._time_s
 
-    def _reference_stuck(self, walls):
+    def _reference_stuck(self, walls, standing):
         closer = (np.linalg.norm(self._anchor_xy - self._target, axis=1)
                   - np.linalg.norm(self._pos - self._target, axis=1))
         new_target = np.any(self._target != self._anchor_goal, axis=1)
-        reset = (closer >= crowd_module.STUCK_PROGRESS_M) | new_target | self._arrived
+        reset = (closer >= crowd_module.STUCK_PROGRESS_M) | new_target | standing
         self._anchor_xy[reset] = self._pos[reset]
         self._anchor_goal[reset] = self._target[reset]
         self._anchor_t[reset] = self._time_s
@@ -146,10 +147,11 @@ def _continue_from(reference: Crowd | Wanderers, agents: Crowd | Wanderers) -> N
     reference._rng.bit_generator.state = agents._rng.bit_generator.state
 
 
-@pytest.mark.parametrize(("count", "seed"), [(8, 0), (24, 1)])
-def test_crowd_step_matches_the_numpy_formulation(count: int, seed: int) -> None:
+@pytest.mark.parametrize(("count", "seed", "wait_s"), [(8, 0, 0.0), (24, 1, 0.0), (24, 1, 20.0)])
+def test_crowd_step_matches_the_numpy_formulation(count: int, seed: int, wait_s: float) -> None:
     roadmap = RoadmapGraph(NODES, EDGES)
-    crowd, reference = (cls(roadmap, WALLS, count, np.random.default_rng(seed)) for cls in (Crowd, ReferenceCrowd))
+    crowd, reference = (cls(roadmap, WALLS, count, np.random.default_rng(seed), single_file_wait_s=wait_s)
+                        for cls in (Crowd, ReferenceCrowd))
     hinge = np.array([7.5, 2.0])
     for k in range(500):
         t = 0.1 * k
