@@ -558,6 +558,24 @@ def test_close_to_a_wall_with_the_target_beside_it_the_robot_turns_in_place_then
     assert not any(c.state == "turning" for c in commands_without)
 
 
+def test_askew_before_a_tight_doorway_with_no_path_a_small_stalled_turn_squares_the_robot_up(cache_dir) -> None:
+    # jambs 0.8 m apart beside the robot's front (0.1 m of room each side of the 0.6 m base), the robot 10 degrees
+    # off the doorway's axis: no path gets through, and the target lies within turn_in_place_stop_rad
+    jambs = np.vstack([wall(0.2, 0.4, 0.35, 0.4, step=0.02), wall(0.2, -0.4, 0.35, -0.4, step=0.02)])
+    start = (0.0, 0.0, math.radians(10.0))
+    # by default a robot with no path turns in place only from turn_in_place_stop_rad: it waits there for good
+    _, commands = drive(make_nav(cache_dir), jambs, (3.0, 0.0), 20.0, start=start)
+    assert {c.state for c in commands} == {"waiting"}
+    # from 3 degrees it squares up and goes through
+    poses, commands = drive(make_nav(cache_dir, turn_in_place_stalled_rad=math.radians(3.0)), jambs, (3.0, 0.0),
+                            20.0, start=start)
+    assert commands[0].state == "turning" and commands[0].w_rad_s < 0.0
+    assert commands[-1].state == "reached"
+    assert footprint_distance(poses, jambs[:, :2], BASE.polygon) > 0.04
+    with pytest.raises(ValueError, match="turn_in_place_stalled_rad"):
+        NavigatorConfig(turn_in_place_stalled_rad=math.radians(20.0))
+
+
 def test_a_target_beside_the_robot_in_open_space_is_reached_on_a_path_not_by_turning_in_place(cache_dir) -> None:
     nav = make_nav(cache_dir)
     _, commands = drive(nav, np.zeros((0, 3)), (0.0, 2.0), 20.0)
