@@ -195,7 +195,9 @@ class Crowd:
         self._circle_pad.flags.writeable = False
         self._init_grids()
         self._single_file_wait_s = float(single_file_wait_s)
-        self._roomy = _node_clearances_m(roadmap.nodes_xy, self._walls) >= SINGLE_FILE_CLEARANCE_M
+        # the roadmap nodes with room to pass a robot (looked at only by the single-file rule)
+        self._roomy = (_wall_clearances_m(roadmap.nodes_xy, self._walls) >= SINGLE_FILE_CLEARANCE_M
+                       if self._single_file_wait_s > 0.0 else np.ones(roadmap.node_count, dtype=bool))
         keep = np.zeros((0, 3)) if keep_out is None else np.asarray(keep_out, dtype=float).reshape(-1, 3)
         self._pos, start_nodes = self._spawn(int(count), keep)
         self._vel = np.zeros_like(self._pos)
@@ -479,9 +481,9 @@ class Crowd:
         about_to_enter = ((wp >= 1) & ~self._arrived & self._roomy[before] & ~self._roomy[ahead]
                           & (self._time_s >= self._wait_again_s)
                           & (np.einsum("ij,ij->i", gap, gap) >= SINGLE_FILE_MARGIN_M**2))
+        reach = circles[:, 2] + self.radius_m
         for k in np.nonzero(about_to_enter)[0]:
             stretch = self._single_file_stretch(int(k))
-            reach = circles[:, 2] + self.radius_m
             waiting[k] = any(not _keeps_clear(stretch, np.array([c[0], c[1], r])) for c, r in zip(circles, reach))
         return waiting
 
@@ -638,11 +640,8 @@ class Crowd:
         return None
 
     def _free(self, xy: np.ndarray, r: float, placed: list[np.ndarray], keep_out: np.ndarray) -> bool:
-        if len(self._walls):
-            m = len(self._walls)
-            _, d = self._walls.offsets(xy[None, :], np.zeros(m, dtype=np.int64), np.arange(m))
-            if np.min(d) < r:
-                return False
+        if _wall_clearances_m(xy[None, :], self._walls)[0] < r:
+            return False
         if placed and np.min(np.linalg.norm(np.array(placed) - xy, axis=1)) < 2.0 * r:
             return False
         if len(keep_out) and np.any(np.linalg.norm(keep_out[:, :2] - xy, axis=1) < keep_out[:, 2] + r):
@@ -660,13 +659,13 @@ def _keeps_clear(polyline_xy: np.ndarray, circle: np.ndarray) -> bool:
     return bool(np.all(np.linalg.norm(a + t[:, None] * ab - centre, axis=1) >= radius))
 
 
-def _node_clearances_m(nodes_xy: np.ndarray, walls: Segments) -> np.ndarray:
-    """(K,) distance from each of the (K, 2) nodes (m) to the nearest wall segment, metres (inf without walls)."""
+def _wall_clearances_m(points_xy: np.ndarray, walls: Segments) -> np.ndarray:
+    """(K,) distance from each of the (K, 2) points (m) to the nearest wall segment, metres (inf without walls)."""
     if len(walls) == 0:
-        return np.full(len(nodes_xy), math.inf)
-    ped, seg = all_pairs(len(nodes_xy), len(walls))
-    _, dist = walls.offsets(np.asarray(nodes_xy, dtype=float), ped, seg)
-    return dist.reshape(len(nodes_xy), len(walls)).min(axis=1)
+        return np.full(len(points_xy), math.inf)
+    ped, seg = all_pairs(len(points_xy), len(walls))
+    _, dist = walls.offsets(np.asarray(points_xy, dtype=float), ped, seg)
+    return dist.reshape(len(points_xy), len(walls)).min(axis=1)
 
 
 def _visible(p: np.ndarray, q: np.ndarray, walls: Segments) -> bool:
