@@ -685,8 +685,12 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
 
     for i, node in enumerate(route):
         p = nodes_xy[node]
+        lineup = _lineup_heading_rad(nodes_xy, route, i, narrow, turnable)
         if not narrow[node]:
-            add(_right_of_route(nodes_xy, route, i, narrow, keep_right_m), True, free_m)
+            if lineup is not None:
+                add(p, False, DOOR_APPROACH_TOLERANCE_M, lineup)
+            else:
+                add(_right_of_route(nodes_xy, route, i, narrow, keep_right_m), True, free_m)
             continue
         if i > 0:
             # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach
@@ -697,6 +701,9 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
         sharp = (turnable is not None and i > 0 and turnable[node] and not turnable[route[i - 1]]
                  and abs(_route_turn_rad(nodes_xy, route, i)) > TURNING_NODE_RAD)
+        if lineup is not None:
+            add(p, False, DOOR_APPROACH_TOLERANCE_M, lineup, is_doorway=True)
+            continue
         add(p, False, DOOR_APPROACH_TOLERANCE_M if sharp else NARROW_NODE_TOLERANCE_M, is_doorway=True)
         if i < len(route) - 1:
             add(_towards(p, nodes_xy[route[i + 1]]), True, NARROW_NODE_TOLERANCE_M)
@@ -734,6 +741,24 @@ def _right_of_route(nodes_xy: np.ndarray, route: Sequence[int], i: int, narrow: 
     along = nodes_xy[route[i + 1]] - nodes_xy[route[i - 1]]
     along = along / np.linalg.norm(along)
     return p + keep_right_m[route[i]] * np.array([along[1], -along[0]])
+
+
+def _lineup_heading_rad(nodes_xy: np.ndarray, route: Sequence[int], i: int, narrow: np.ndarray,
+                        turnable: np.ndarray | None) -> float | None:
+    """The heading (rad) at which the route's i-th node is passed when the robot lines up there with the doorway
+    that comes next, else None: the node is one where the robot can turn in place, the next is a narrow
+    node where it cannot, closer than ``2 DOOR_APPROACH_M`` (the approach waypoint half way between them then lies
+    where the robot cannot turn either: in the flat's 1 m hallway, 0.225 m from the wall beside the doorway) and
+    the route turns there by more than ``TURNING_NODE_RAD`` (or starts there)."""
+    if turnable is None or i >= len(route) - 1 or not turnable[route[i]]:
+        return None
+    nxt = route[i + 1]
+    step = nodes_xy[nxt] - nodes_xy[route[i]]
+    if not narrow[nxt] or turnable[nxt] or float(np.linalg.norm(step)) >= 2.0 * DOOR_APPROACH_M:
+        return None
+    if i > 0 and abs(_route_turn_rad(nodes_xy, route, i)) <= TURNING_NODE_RAD:
+        return None
+    return math.atan2(step[1], step[0])
 
 
 def _route_turn_rad(nodes_xy: np.ndarray, route: Sequence[int], i: int) -> float:

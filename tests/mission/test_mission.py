@@ -224,10 +224,33 @@ def test_the_hallway_outside_a_doorway_is_reached_close_by_where_the_route_turns
     # out of the doorway, then turning along the hallway: the hallway's middle is reached close by
     assert tolerance_at([0, 1, 2, 3, 4], [0.0, 0.0]) == DOOR_APPROACH_TOLERANCE_M
     assert tolerance_at([0, 1, 2, 3, 4], [2.0, 0.0]) == NARROW_NODE_TOLERANCE_M  # further along: as before
-    # along the hallway and turning into the doorway (the approach waypoint lines it up), or nothing known about
+    # along the hallway and turning into the doorway: lined up there too (see the next test); nothing known about
     # where the robot can turn: as before
-    assert tolerance_at([4, 3, 2, 1, 0], [0.0, 0.0]) == NARROW_NODE_TOLERANCE_M
+    assert tolerance_at([4, 3, 2, 1, 0], [0.0, 0.0]) == DOOR_APPROACH_TOLERANCE_M
     assert tolerance_at([0, 1, 2, 3, 4], [0.0, 0.0], None) == NARROW_NODE_TOLERANCE_M
+
+
+def test_a_doorway_close_beside_a_narrow_hallway_is_lined_up_where_the_robot_can_turn():
+    from simnav.mission.mission import DOOR_APPROACH_TOLERANCE_M, route_waypoints
+
+    # along a 1 m hallway (nodes 0, 1), turning at node 1 into the doorway 0.55 m beside it (2), into the room (3)
+    nodes = np.array([[-2.0, 0.0], [0.0, 0.0], [0.0, 0.55], [0.0, 2.0]])
+    narrow = np.array([True, True, True, False])
+    turnable = np.array([True, True, False, True])
+    xy, skip, near, heading, _ = route_waypoints(nodes, [0, 1, 2, 3], narrow, 1.0, turnable)
+    # the robot lines up at the hallway node, facing the doorway, not half way to it (no room to turn there)
+    (i,) = np.flatnonzero(np.all(np.isclose(xy, [0.0, 0.0]), axis=1))
+    assert near[i] == DOOR_APPROACH_TOLERANCE_M and not skip[i]
+    np.testing.assert_allclose(heading[i], np.pi / 2)
+    assert not np.any(skip[i:i + 2])  # then straight on through the approach waypoint, nothing left to cut
+    np.testing.assert_allclose(xy[i + 1], [0.0, 0.275])
+    # a doorway far enough from the hallway node, one where the robot can turn, or going on straight: as before
+    far = nodes * [1.0, 3.0]
+    xy, _, _, heading, _ = route_waypoints(far, [0, 1, 2, 3], narrow, 1.0, turnable)
+    assert np.isnan(heading[np.flatnonzero(np.all(np.isclose(xy, [0.0, 0.0]), axis=1))[0]])
+    for fit, route in ((np.ones(4, dtype=bool), [0, 1, 2, 3]), (turnable, [3, 2, 1, 0])):
+        xy, _, _, heading, _ = route_waypoints(nodes, route, narrow, 1.0, fit)
+        assert np.isnan(heading[np.flatnonzero(np.all(np.isclose(xy, nodes[1]), axis=1))[0]])
 
 
 def test_the_route_keeps_to_the_right_where_it_goes_on_straight_between_wide_nodes():
