@@ -18,17 +18,20 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
 5. its (v, w), rescaled (keeping the path's curvature) for obstacles nearby (frontal ones weigh more) and for the
    approach to the final target, then limited in acceleration.
 
-When no path of any family reaches the target (a wall close ahead, the target to the side or behind) and the
-target lies more than ``turn_in_place_start_rad`` off the heading, the robot turns in place towards it if nothing
-is within its turning circle: every PTG path moves forward while it turns, so close to a wall the secure distance
-stops them all. When every path is blocked the robot backs away slowly for a few seconds if the space behind is
-free, then stops and waits (§6.C.6); it backs only onto the path it drove along. A waypoint to line up at (given a
-heading) whose spot is taken, an open door leaf or someone standing there, counts as reached once the robot is
-close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly now and then to make
-room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands in (a waypoint
-flagged ``give_way``), the robot yields: it backs away along its trail to ``give_way_distance_m`` from the doorway,
-stops there and goes on once the doorway has been free for ``give_way_clear_s``. A target whose distance has not
-improved for ``stuck_timeout_s`` marks the navigator stuck.
+When no path of any family reaches the target (a wall close ahead, the target to the side or behind) and the target
+lies more than ``turn_in_place_start_rad`` off the heading, the robot turns in place towards it if nothing is within
+its turning circle: every PTG path moves forward while it turns, so close to a wall the secure distance stops them
+all. When every path is blocked the robot backs away slowly for a few seconds if the space behind is free, then
+stops and waits (§6.C.6); it backs only onto the path it drove along. Before that, a doorway the grids close (their
+cells and margin keep 1.5-8.5 cm from the points: a 0.8 m doorway in front of the Giraff 5 cm off its centre line)
+is squeezed through: the target's own path, checked exactly against the points over its first 0.8 m with a 2 cm
+margin, is followed slowly when that finds it free (``squeeze``, near waypoints flagged ``give_way``). A waypoint to
+line up at (given a heading) whose spot is taken, an open door leaf or someone standing there, counts as reached
+once the robot is close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly
+now and then to make room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands
+in (a waypoint flagged ``give_way``), the robot yields: it backs away along its trail to ``give_way_distance_m``
+from the doorway, stops there and goes on once the doorway has been free for ``give_way_clear_s``. A target whose
+distance has not improved for ``stuck_timeout_s`` marks the navigator stuck.
 Units: m, s, rad; frames: ``base`` (x forward, y left), ``odom`` (any fixed frame the pose is given in).
 """
 
@@ -131,6 +134,21 @@ class NavigatorConfig:
             the target, they keep the lead for a while instead of the two taking turns for ever (unless no path
             moves at all: then turning beats waiting), s.
         turn_in_place_retry_m: ... or once it has moved this far, m.
+        squeeze: drive through a doorway the collision grids close (see the module doc): when no path moves, the
+            robot does not turn in place, a doorway (a waypoint flagged ``give_way`` among the few before and
+            after the current one) lies within ``squeeze_reach_m`` and the target within 30 degrees of the heading,
+            the target's own path of a PTG is followed (not again within ``recovery_clearance_m`` of where a
+            squeeze ended with every path blocked), at most at
+            ``squeeze_speed_m_s``, if the grids block it more than ``secure_distance_m`` short of
+            ``squeeze_reach_m`` (or of the target, if closer) and the robot's true sections grown by
+            ``squeeze_margin_m`` sweep it that far without containing any sensed or remembered point. A grid marks
+            a point where the section grown by ``footprint_margin_m`` covers its cell's centre, so with 5 cm cells
+            and margin it keeps 1.5 to 8.5 cm from the points, and 0.8 m doorways, 0.28 m wider than the Giraff,
+            closed in front of a robot 5 cm off their centre line, nothing else near. Only at doorways: in the
+            office's corridors it let the robot creep past people 2-5 cm from its outline.
+        squeeze_margin_m: ... the margin of that exact test, m.
+        squeeze_reach_m: ... how far along the path the exact test looks, m.
+        squeeze_speed_m_s: ... the top speed while squeezing through, m/s.
         stuck_timeout_s: the navigator reports ``stuck`` when the distance to the furthest waypoint it has aimed at
             (a skipped waypoint aimed at again does not count) has not improved by ``stuck_progress_m`` for this
             long (passing a waypoint is progress), s.
@@ -199,6 +217,10 @@ class NavigatorConfig:
     turn_in_place_stalled_rad: float = math.radians(15.0)
     turn_in_place_retry_s: float = 10.0
     turn_in_place_retry_m: float = 0.3
+    squeeze: bool = True
+    squeeze_margin_m: float = 0.02
+    squeeze_reach_m: float = 0.8
+    squeeze_speed_m_s: float = 0.1
     stuck_timeout_s: float = 30.0
     stuck_progress_m: float = 0.2
     blocked_check_m: float = 2.0
@@ -228,6 +250,8 @@ class NavigatorConfig:
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
             (self.stuck_timeout_s > 0, "stuck_timeout_s must be > 0"),
+            (self.squeeze_margin_m >= 0 and self.squeeze_reach_m > 0 and self.squeeze_speed_m_s > 0,
+             "need squeeze_margin_m >= 0, squeeze_reach_m > 0 and squeeze_speed_m_s > 0"),
             *[(getattr(self, name) >= 0, f"{name} must be >= 0, got {getattr(self, name)}")
               for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s")],
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
@@ -335,6 +359,9 @@ class ReactiveNavigator3D:
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m
         self._tight_turn_radii_m = circumradii_m + min(cfg.footprint_margin_m, _TIGHT_TURN_MARGIN_M)
+        self._squeeze_polygons = [grow(band, min(cfg.squeeze_margin_m, cfg.footprint_margin_m)).polygon
+                                  for band in self.bands]
+        self._squeeze_radii_m = circumradii_m + min(cfg.squeeze_margin_m, cfg.footprint_margin_m)
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
         self.view = None if view is None else tuple(view)
         self._view_limits = ([_view_limits(space, self.view, self.bands) for space in self._spaces]
@@ -411,6 +438,7 @@ class ReactiveNavigator3D:
         self._blocked_since_s = self._goal_blocked_since_s = None
         self._spot_taken_steps = 0
         self._turning, self._turn_end = False, None
+        self._squeezing, self._squeeze_stuck_xy = False, None
         self._seam_side = 0
 
     def set_target(self, target_xy: Sequence[float]) -> None:
@@ -512,8 +540,16 @@ class ReactiveNavigator3D:
             w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
             return self._output(0.0, w, dt, t0, "turning", target_index)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
+        squeezing = False
+        if stalled and not recovering and cfg.squeeze and self._may_squeeze(T_odom_base):
+            squeeze = self._squeeze_candidate(target_base, limits, band_xy)  # a doorway the grids close
+            best, squeezing = (squeeze, True) if squeeze is not None else (best, False)
         if best is None or best.speed <= 0.0 or recovering:
+            if self._squeezing:  # squeezed in and stuck: not again from here
+                self._squeeze_stuck_xy = T_odom_base[:2, 2].copy()
+            self._squeezing = False
             return self._recover(stamp_s, dt, t0, T_odom_base, band_xy, target_index)
+        self._squeezing = squeezing
         self._blocked_since_s = None
         space = self._spaces[best.ptg]
         v, w = space.command(best.k)
@@ -707,6 +743,61 @@ class ReactiveNavigator3D:
         if best is None and self._fallback is not None:  # ND found no way: a lower floor for its gap search
             best, _ = self._candidates(target_base, limits, final, self._fallback)
         return best, direct
+
+    def _may_squeeze(self, T_odom_base: np.ndarray) -> bool:
+        """Whether a waypoint flagged ``give_way`` (a doorway) among the ``_DOORWAY_RUN`` before and after the
+        current one lies within ``squeeze_reach_m`` of the robot, and the robot is ``recovery_clearance_m`` or more
+        from where squeezing last ended with every path blocked (else it squeezes in and backs out in turn)."""
+        xy = T_odom_base[:2, 2]
+        if self._squeeze_stuck_xy is not None and \
+                float(np.linalg.norm(xy - self._squeeze_stuck_xy)) < self.config.recovery_clearance_m:
+            return False
+        lo, hi = max(self._target - _DOORWAY_RUN, 0), min(self._target + _DOORWAY_RUN, len(self._waypoints) - 1)
+        run = np.arange(lo, hi + 1)
+        run = run[self._give_way[run]]
+        return bool(len(run)) and float(np.min(np.hypot(*(self._waypoints[run] - xy).T))) <= \
+            self.config.squeeze_reach_m
+
+    def _squeeze_candidate(self, target_base: np.ndarray, limits: list[np.ndarray],
+                           band_xy: list[np.ndarray]) -> _Candidate | None:
+        """For a target within ``_SQUEEZE_BEARING_RAD`` of the heading, the target's own path of the first PTG whose
+        grids block it more than ``secure_distance_m`` short of
+        ``squeeze_reach_m`` (or of the target, if closer: an obstacle just beyond is no gap) and whose exact sweep
+        that far is free (:meth:`_sweep_is_free`), at ``squeeze_speed_m_s``; None if there is none."""
+        cfg = self.config
+        if abs(math.atan2(float(target_base[1]), float(target_base[0]))) > _SQUEEZE_BEARING_RAD:
+            return None  # a gap ahead, not a way round
+        for i, (space, lim) in enumerate(zip(self._spaces, limits, strict=True)):
+            k_t, d_t, _ = space.inverse_map(float(target_base[0]), float(target_base[1]))
+            d_s = min(d_t, cfg.squeeze_reach_m / cfg.ref_distance_m, 1.0)
+            if (d_s - float(lim[k_t])) * cfg.ref_distance_m <= cfg.secure_distance_m or \
+                    not self._sweep_is_free(space, k_t, d_s, band_xy):
+                continue
+            v, w = space.command(k_t)
+            path_m_s = math.hypot(v, w * space.ptg.config.turning_radius_ref_m)
+            speed = min(self._stopping_speed(space, k_t, d_s), cfg.squeeze_speed_m_s / max(path_m_s, 1e-9))
+            if speed > 0.0:
+                return _Candidate(i, k_t, speed, d_s, 0.0)
+        return None
+
+    def _sweep_is_free(self, space, k: int, d_norm: float, band_xy: list[np.ndarray]) -> bool:
+        """Whether the robot's sections grown by ``squeeze_margin_m``, moved along path k of ``space`` up to the
+        normalised distance ``d_norm`` (the PTG's stored poses, 1.5 cm apart, and the end pose), contain none of
+        ``band_xy`` (per band, base frame, m)."""
+        ptg = space.ptg
+        n = ptg.step_for_distance(k, d_norm * ptg.ref_distance_m) + 1
+        poses = np.vstack([ptg.poses[k, :n], ptg.pose_at(k, d_norm)[None]])
+        reach_m = d_norm * ptg.ref_distance_m
+        for polygon, radius, pts in zip(self._squeeze_polygons, self._squeeze_radii_m, band_xy, strict=True):
+            pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= reach_m + radius]
+            if len(pts) == 0:
+                continue
+            c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+            dx, dy = pts[None, :, 0] - poses[:, 0, None], pts[None, :, 1] - poses[:, 1, None]
+            local = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+            if np.any(points_in_polygon(local, polygon)):
+                return False
+        return True
 
     def _candidates(self, target_base: np.ndarray, limits: list[np.ndarray], final: bool,
                     methods: list) -> tuple[_Candidate | None, bool]:
@@ -937,6 +1028,8 @@ class ReactiveNavigator3D:
 
 _ND = NDConfig()
 _SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
+_SQUEEZE_BEARING_RAD = math.radians(30.0)  # squeezing only towards a target this close to the heading: behind the
+# robot, the target's own path turns it round beside what closed the grids (an open door leaf in the office)
 _TIGHT_TURN_MARGIN_M = 0.02  # clearance of the turning circle when turning in place is all the robot can do
 
 

@@ -576,6 +576,50 @@ def test_askew_before_a_tight_doorway_with_no_path_a_small_stalled_turn_squares_
         NavigatorConfig(turn_in_place_stalled_rad=math.radians(20.0))
 
 
+def test_a_doorway_the_grids_close_is_squeezed_through_when_the_exact_sweep_is_free(cache_dir) -> None:
+    # 0.1 m deep jambs 0.76 m apart just ahead, the 0.6 m base 4 cm off their centre line: 3 cm between its side and
+    # the nearer jamb, less than the grids' 5 cm margin (plus up to half a cell), more than the squeeze's 2 cm
+    jambs = np.vstack([wall(0.3, 0.38, 0.4, 0.38, step=0.01), wall(0.3, -0.38, 0.4, -0.38, step=0.01)])
+    start, goal = (0.0, 0.04, 0.0), (2.0, 0.0)
+
+    def drive_through(nav, obstacles, seconds):
+        """The doorway's waypoint (flagged give_way, as missions flag narrow nodes), then the goal beyond it."""
+        nav.set_target = lambda xy: nav.set_waypoints(np.array([[0.35, 0.0], xy]), allow_skip=np.array([False, True]),
+                                                      allowed_distance_m=np.array([0.3, 0.3]),
+                                                      give_way=np.array([True, False]))
+        return drive(nav, obstacles, goal, seconds, start=start)
+
+    _, commands = drive_through(make_nav(cache_dir, squeeze=False), jambs, 10.0)
+    assert commands[-1].state in ("waiting", "recovering") and commands[-1].v_m_s <= 0.0
+    _, commands = drive(make_nav(cache_dir), jambs, goal, 10.0, start=start)  # no doorway flagged: no squeezing
+    assert commands[-1].state in ("waiting", "recovering") and commands[-1].v_m_s <= 0.0
+    poses, commands = drive_through(make_nav(cache_dir), jambs, 40.0)
+    assert commands[-1].state == "reached"
+    gap = footprint_distance(poses, jambs[:, :2], BASE.polygon)
+    assert 0.02 - 1e-3 < gap < 0.05
+    first_move = next(c.v_m_s for c in commands if c.v_m_s > 0.0)  # slowly, until the grids see it fit
+    assert first_move <= make_nav(cache_dir).config.squeeze_speed_m_s + 1e-9
+    with pytest.raises(ValueError, match="squeeze_speed_m_s"):
+        NavigatorConfig(squeeze_speed_m_s=0.0)
+    # someone standing in the doorway: no squeezing into them
+    person = np.vstack([jambs, wall(0.7, -0.1, 0.7, 0.1, step=0.02)])
+    poses, commands = drive_through(make_nav(cache_dir), person, 10.0)
+    assert commands[-1].state != "reached" and np.max(poses[:, 0, 2]) < 0.2
+
+
+def test_squeezing_is_not_tried_again_where_it_ended_with_every_path_blocked(cache_dir) -> None:
+    nav = make_nav(cache_dir)
+    nav.set_waypoints(np.array([[0.5, 0.0], [3.0, 0.0]]), give_way=np.array([True, False]))
+    assert nav._may_squeeze(np.eye(3))  # a doorway 0.5 m ahead
+    nav._squeeze_stuck_xy = np.array([0.1, 0.0])  # where a squeeze ended blocked
+    assert not nav._may_squeeze(np.eye(3))
+    assert nav._may_squeeze(se2.from_xy_yaw(-0.25, 0.0, 0.0))  # backed away 0.35 m from it
+    nav.set_waypoints(np.array([[0.5, 0.0], [3.0, 0.0]]), give_way=np.array([True, False]))
+    assert nav._may_squeeze(np.eye(3))  # a new route forgets it
+    nav.set_waypoints(np.array([[0.5, 0.0], [3.0, 0.0]]))
+    assert not nav._may_squeeze(np.eye(3))  # no doorway on the route
+
+
 def test_a_target_beside_the_robot_in_open_space_is_reached_on_a_path_not_by_turning_in_place(cache_dir) -> None:
     nav = make_nav(cache_dir)
     _, commands = drive(nav, np.zeros((0, 3)), (0.0, 2.0), 20.0)
