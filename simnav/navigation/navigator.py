@@ -24,9 +24,9 @@ its turning circle: every PTG path moves forward while it turns, so close to a w
 all. When every path is blocked the robot backs away slowly for a few seconds if the space behind is free, then
 stops and waits (§6.C.6); it backs only onto the path it drove along. Before that, a doorway the grids close (their
 cells and margin keep 1.5-8.5 cm from the points: a 0.8 m doorway in front of the Giraff 5 cm off its centre line)
-is squeezed through: the target's own path, checked exactly against the points over its first 0.8 m with a 2 cm
-margin, is followed slowly when that finds it free (``squeeze``, near waypoints flagged ``give_way``). A waypoint to
-line up at (given a heading) whose spot is taken, an open door leaf or someone standing there, counts as reached
+is squeezed through: the target's own path, checked exactly against the points up to a target 0.8 m ahead with a 2
+cm margin, is followed slowly when that finds it free (``squeeze``, near waypoints flagged ``give_way``). A waypoint
+to line up at (given a heading) whose spot is taken, an open door leaf or someone standing there, counts as reached
 once the robot is close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly
 now and then to make room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands
 in (a waypoint flagged ``give_way``), the robot yields: it backs away along its trail to ``give_way_distance_m``
@@ -136,18 +136,18 @@ class NavigatorConfig:
         turn_in_place_retry_m: ... or once it has moved this far, m.
         squeeze: drive through a doorway the collision grids close (see the module doc): when no path moves, the
             robot does not turn in place, a doorway (a waypoint flagged ``give_way`` among the few before and
-            after the current one) lies within ``squeeze_reach_m`` and the target within 30 degrees of the heading,
-            the target's own path of a PTG is followed (not again within ``recovery_clearance_m`` of where a
-            squeeze ended with every path blocked), at most at
-            ``squeeze_speed_m_s``, if the grids block it more than ``secure_distance_m`` short of
-            ``squeeze_reach_m`` (or of the target, if closer) and the robot's true sections grown by
-            ``squeeze_margin_m`` sweep it that far without containing any sensed or remembered point. A grid marks
+            after the current one) lies within ``squeeze_reach_m`` and the target within 30 degrees of the heading
+            and within ``squeeze_reach_m`` along a PTG's path, that path is followed at most at
+            ``squeeze_speed_m_s`` (not again within ``recovery_clearance_m`` of where a squeeze ended with every
+            path blocked) if the grids block it more than ``secure_distance_m`` short of the target and the
+            robot's true sections grown by ``squeeze_margin_m`` sweep it up to the target without containing any
+            sensed or remembered point. A grid marks
             a point where the section grown by ``footprint_margin_m`` covers its cell's centre, so with 5 cm cells
             and margin it keeps 1.5 to 8.5 cm from the points, and 0.8 m doorways, 0.28 m wider than the Giraff,
             closed in front of a robot 5 cm off their centre line, nothing else near. Only at doorways: in the
             office's corridors it let the robot creep past people 2-5 cm from its outline.
         squeeze_margin_m: ... the margin of that exact test, m.
-        squeeze_reach_m: ... how far along the path the exact test looks, m.
+        squeeze_reach_m: ... how far the doorway and, along the path, the target may lie, m.
         squeeze_speed_m_s: ... the top speed while squeezing through, m/s.
         stuck_timeout_s: the navigator reports ``stuck`` when the distance to the furthest waypoint it has aimed at
             (a skipped waypoint aimed at again does not count) has not improved by ``stuck_progress_m`` for this
@@ -760,24 +760,25 @@ class ReactiveNavigator3D:
 
     def _squeeze_candidate(self, target_base: np.ndarray, limits: list[np.ndarray],
                            band_xy: list[np.ndarray]) -> _Candidate | None:
-        """For a target within ``_SQUEEZE_BEARING_RAD`` of the heading, the target's own path of the first PTG whose
-        grids block it more than ``secure_distance_m`` short of
-        ``squeeze_reach_m`` (or of the target, if closer: an obstacle just beyond is no gap) and whose exact sweep
-        that far is free (:meth:`_sweep_is_free`), at ``squeeze_speed_m_s``; None if there is none."""
+        """For a target within ``_SQUEEZE_BEARING_RAD`` of the heading, the target's own path of the first PTG that
+        reaches it within ``squeeze_reach_m``, whose grids block it more than ``secure_distance_m`` short of it (an
+        obstacle just beyond is no gap) and whose exact sweep up to it is free (:meth:`_sweep_is_free`), at
+        ``squeeze_speed_m_s``; None if there is none (a squeeze towards a target further on took the robot along
+        an open door leaf in the office, into a corner)."""
         cfg = self.config
         if abs(math.atan2(float(target_base[1]), float(target_base[0]))) > _SQUEEZE_BEARING_RAD:
             return None  # a gap ahead, not a way round
         for i, (space, lim) in enumerate(zip(self._spaces, limits, strict=True)):
             k_t, d_t, _ = space.inverse_map(float(target_base[0]), float(target_base[1]))
-            d_s = min(d_t, cfg.squeeze_reach_m / cfg.ref_distance_m, 1.0)
-            if (d_s - float(lim[k_t])) * cfg.ref_distance_m <= cfg.secure_distance_m or \
-                    not self._sweep_is_free(space, k_t, d_s, band_xy):
+            if d_t * cfg.ref_distance_m > cfg.squeeze_reach_m or \
+                    (d_t - float(lim[k_t])) * cfg.ref_distance_m <= cfg.secure_distance_m or \
+                    not self._sweep_is_free(space, k_t, d_t, band_xy):
                 continue
             v, w = space.command(k_t)
             path_m_s = math.hypot(v, w * space.ptg.config.turning_radius_ref_m)
-            speed = min(self._stopping_speed(space, k_t, d_s), cfg.squeeze_speed_m_s / max(path_m_s, 1e-9))
+            speed = min(self._stopping_speed(space, k_t, d_t), cfg.squeeze_speed_m_s / max(path_m_s, 1e-9))
             if speed > 0.0:
-                return _Candidate(i, k_t, speed, d_s, 0.0)
+                return _Candidate(i, k_t, speed, d_t, 0.0)
         return None
 
     def _sweep_is_free(self, space, k: int, d_norm: float, band_xy: list[np.ndarray]) -> bool:
@@ -1028,8 +1029,7 @@ class ReactiveNavigator3D:
 
 _ND = NDConfig()
 _SEAM_RAD = math.radians(135.0)  # paths beyond this |alpha| lie at the seam of TP-space (see _keep_seam_side)
-_SQUEEZE_BEARING_RAD = math.radians(30.0)  # squeezing only towards a target this close to the heading: behind the
-# robot, the target's own path turns it round beside what closed the grids (an open door leaf in the office)
+_SQUEEZE_BEARING_RAD = math.radians(30.0)  # squeezing only towards a target this close to the heading: a gap ahead
 _TIGHT_TURN_MARGIN_M = 0.02  # clearance of the turning circle when turning in place is all the robot can do
 
 
