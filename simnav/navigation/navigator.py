@@ -763,8 +763,8 @@ class ReactiveNavigator3D:
         """For a target within ``_SQUEEZE_BEARING_RAD`` of the heading, the target's own path of the first PTG that
         reaches it within ``squeeze_reach_m``, whose grids block it more than ``secure_distance_m`` short of it (an
         obstacle just beyond is no gap) and whose exact sweep up to it is free (:meth:`_sweep_is_free`), at
-        ``squeeze_speed_m_s``; None if there is none (a squeeze towards a target further on took the robot along
-        an open door leaf in the office, into a corner)."""
+        ``squeeze_speed_m_s``; None if there is none (squeezing towards a target further on, the robot crept along
+        an open door leaf in the office, then squeezed and backed out in turn)."""
         cfg = self.config
         if abs(math.atan2(float(target_base[1]), float(target_base[0]))) > _SQUEEZE_BEARING_RAD:
             return None  # a gap ahead, not a way round
