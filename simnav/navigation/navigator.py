@@ -53,7 +53,7 @@ from simnav.navigation.holonomic import METHODS, HolonomicInput, NDConfig, index
 from simnav.navigation.memory import MemoryConfig, ShortTermMemory
 from simnav.navigation.sensing import ViewSector
 
-STATES = ("idle", "navigating", "turning", "reached", "blocked", "recovering", "waiting", "yielding")
+STATES = ("idle", "navigating", "turning", "squeezing", "reached", "blocked", "recovering", "waiting", "yielding")
 
 
 @dataclass(frozen=True)
@@ -278,7 +278,8 @@ class NavCommand:
     Attributes:
         v_m_s: forward speed command, m/s.
         w_rad_s: yaw rate command, rad/s.
-        state: one of ``STATES`` (``turning``: turning in place towards the target).
+        state: one of ``STATES`` (``turning``: turning in place towards the target; ``squeezing``: through a
+            doorway the grids close, ``NavigatorConfig.squeeze``).
         stuck: True when the target has not come closer for ``stuck_timeout_s``.
         target_index: index of the waypoint being aimed at, -1 when idle.
         ptg: name of the chosen path family ('' when none).
@@ -558,7 +559,8 @@ class ReactiveNavigator3D:
         speed = best.speed * self._approach_speed_factor(T_odom_base)
         speed *= self._point_speed_scale(v, w, self._obstacle_speed_factor(band_xy))
         v, w = self._limit_speeds(v * speed, w * speed)
-        return self._output(v, w, dt, t0, "navigating", target_index, space.name, best.k, best.free, speed)
+        return self._output(v, w, dt, t0, "squeezing" if squeezing else "navigating", target_index, space.name,
+                            best.k, best.free, speed)
 
     # ------------------------------------------------------------------------------------------- waypoints
     def _advance_waypoints(self, T_odom_base: np.ndarray) -> None:

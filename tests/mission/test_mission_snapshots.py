@@ -41,8 +41,8 @@ def test_the_replay_is_the_recorded_mission(mission_dir) -> None:
         k = int(np.argmin(np.abs(gt.stamps_s - view.time_s)))
         assert np.allclose(view.T_world_base[:2, 2], gt.T[k][:2, 3], atol=1e-6)  # the same run, not a similar one
         assert view.people_xy.shape == (3, 2) and view.robots_xy.shape == (1, 2) and view.leaves.shape == (8, 2, 2)
-        assert len(view.waypoints) >= 1 and view.state in {"navigating", "turning", "reached", "yielding", "waiting",
-                                                            "recovering", "blocked"}
+        assert len(view.waypoints) >= 1 and view.state in {"navigating", "turning", "squeezing", "reached", "yielding",
+                                                            "waiting", "recovering", "blocked"}
 
 
 def test_the_views_are_drawn_and_bad_input_is_one_line(mission_dir, tmp_path) -> None:

@@ -597,8 +597,8 @@ def test_a_doorway_the_grids_close_is_squeezed_through_when_the_exact_sweep_is_f
     assert commands[-1].state == "reached"
     gap = footprint_distance(poses, jambs[:, :2], BASE.polygon)
     assert 0.02 - 1e-3 < gap < 0.05
-    first_move = next(c.v_m_s for c in commands if c.v_m_s > 0.0)  # slowly, until the grids see it fit
-    assert first_move <= make_nav(cache_dir).config.squeeze_speed_m_s + 1e-9
+    first_move = next(c for c in commands if c.v_m_s > 0.0)  # slowly, until the grids see it fit
+    assert first_move.state == "squeezing" and first_move.v_m_s <= make_nav(cache_dir).config.squeeze_speed_m_s + 1e-9
     with pytest.raises(ValueError, match="squeeze_speed_m_s"):
         NavigatorConfig(squeeze_speed_m_s=0.0)
     # someone standing in the doorway: no squeezing into them
