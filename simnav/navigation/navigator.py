@@ -141,11 +141,11 @@ class NavigatorConfig:
             ``squeeze_speed_m_s`` (not again within ``recovery_clearance_m`` of where a squeeze ended with every
             path blocked) if the grids block it more than ``secure_distance_m`` short of the target and the
             robot's true sections grown by ``squeeze_margin_m`` sweep it up to the target without containing any
-            sensed or remembered point. A grid marks
-            a point where the section grown by ``footprint_margin_m`` covers its cell's centre, so with 5 cm cells
-            and margin it keeps 1.5 to 8.5 cm from the points, and 0.8 m doorways, 0.28 m wider than the Giraff,
-            closed in front of a robot 5 cm off their centre line, nothing else near. Only at doorways: in the
-            office's corridors it let the robot creep past people 2-5 cm from its outline.
+            sensed or remembered point. A grid marks a point where the section grown by ``footprint_margin_m``
+            covers its cell's centre, so with 5 cm cells and margin it keeps 1.5 to 8.5 cm from the points, and
+            0.8 m doorways, 0.28 m wider than the Giraff, closed in front of a robot 5 cm off their centre line,
+            nothing else near. Only at doorways: in the office's corridors it let the robot creep past people 2-5 cm
+            from its outline.
         squeeze_margin_m: ... the margin of that exact test, m.
         squeeze_reach_m: ... how far the doorway and, along the path, the target may lie, m.
         squeeze_speed_m_s: ... the top speed while squeezing through, m/s.
@@ -541,10 +541,11 @@ class ReactiveNavigator3D:
             w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
             return self._output(0.0, w, dt, t0, "turning", target_index)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
-        squeezing = False
+        squeeze = None
         if stalled and not recovering and cfg.squeeze and self._may_squeeze(T_odom_base):
             squeeze = self._squeeze_candidate(target_base, limits, band_xy)  # a doorway the grids close
-            best, squeezing = (squeeze, True) if squeeze is not None else (best, False)
+        squeezing = squeeze is not None
+        best = squeeze or best
         if best is None or best.speed <= 0.0 or recovering:
             if self._squeezing:  # squeezed in and stuck: not again from here
                 self._squeeze_stuck_xy = T_odom_base[:2, 2].copy()
@@ -791,11 +792,11 @@ class ReactiveNavigator3D:
         n = ptg.step_for_distance(k, d_norm * ptg.ref_distance_m) + 1
         poses = np.vstack([ptg.poses[k, :n], ptg.pose_at(k, d_norm)[None]])
         reach_m = d_norm * ptg.ref_distance_m
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
         for polygon, radius, pts in zip(self._squeeze_polygons, self._squeeze_radii_m, band_xy, strict=True):
             pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= reach_m + radius]
             if len(pts) == 0:
                 continue
-            c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
             dx, dy = pts[None, :, 0] - poses[:, 0, None], pts[None, :, 1] - poses[:, 1, None]
             local = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
             if np.any(points_in_polygon(local, polygon)):
