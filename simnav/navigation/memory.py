@@ -56,6 +56,9 @@ class MemoryConfig:
             height (the navigator's ``free_space_x_m``); off (the default, as MRPT): everywhere in the cone. On,
             low obstacles closer than the floor the camera sees are remembered until they decay, and so are the
             people the camera saw there (README: more turning among people).
+        blind_decay_s: time constant of the decay of cells outside every sensor's field of view (the ``view``
+            sectors given to the memory), s; None: ``decay_s`` everywhere. A jamb that leaves the lidar's view
+            behind the robot is then remembered for longer than one that stays in view.
     """
 
     cell_m: float = 0.04
@@ -71,6 +74,7 @@ class MemoryConfig:
     ray_bin_rad: float = math.radians(2.0)
     ray_margin_m: float = 0.1
     whole_band_view: bool = False
+    blind_decay_s: float | None = None
 
     def __post_init__(self) -> None:
         checks = [(self.cell_m > 0, "cell_m must be > 0"), (self.half_size_m > self.cell_m, "half_size_m > cell_m"),
@@ -78,6 +82,7 @@ class MemoryConfig:
                   (0 < self.miss_probability < 0.5, "miss_probability must be in (0, 0.5)"),
                   (0.5 < self.occupied_probability < 1, "occupied_probability must be in (0.5, 1)"),
                   (self.decay_s > 0, "decay_s must be > 0"),
+                  (self.blind_decay_s is None or self.blind_decay_s > 0, "blind_decay_s must be > 0 (or None)"),
                   (0 < self.ray_bin_rad <= math.pi / 4, "ray_bin_rad must be in (0, pi/4]"),
                   (self.ray_margin_m >= 0, "ray_margin_m must be >= 0")]
         for ok, message in checks:
@@ -102,10 +107,12 @@ class ShortTermMemory:
         free_x_m: (num_bands, 2) per band, the interval [near, far] of forward distance in the base frame (x, m)
             inside which the cone's cells count as seen free (beside ``blind_range_m`` < range < ``cone_range_m``
             and the cone's angle); an empty interval (near > far): never. None: every band everywhere in the cone.
+        view: the sensors' horizontal fields of view in the base frame (:class:`simnav.navigation.sensing.
+            ViewSector`); cells outside all of them decay with ``blind_decay_s``. None: everything is in view.
     """
 
     def __init__(self, num_bands: int, config: MemoryConfig | None = None,
-                 free_x_m: np.ndarray | None = None) -> None:
+                 free_x_m: np.ndarray | None = None, view: Sequence | None = None) -> None:
         self.config = config or MemoryConfig()
         if free_x_m is None:
             free_x_m = np.tile([-math.inf, math.inf], (num_bands, 1))
@@ -121,6 +128,9 @@ class ShortTermMemory:
         self._step = 0
         self._last_stamp_s: float | None = None
         cfg = self.config
+        sectors = [] if view is None or cfg.blind_decay_s is None else view
+        self._view = np.array([[v.x_m, v.y_m, v.yaw_rad, v.half_angle_rad, v.range_m] for v in sectors],
+                              dtype=np.float64).reshape(-1, 5)
         self._params = np.array([cfg.cell_m, cfg.blind_range_m, cfg.cone_range_m, math.cos(cfg.cone_half_angle_rad),
                                  cfg.emit_range_m, _logit(cfg.hit_probability), _logit(cfg.miss_probability),
                                  2 * _logit(0.98), _logit(cfg.occupied_probability) + 1e-6,
@@ -161,16 +171,19 @@ class ShortTermMemory:
         virtual obstacles the same way, (Q, 2) and (B + 1,)."""
         if scan_xy is None or scan_ptr is None:
             scan_xy, scan_ptr = np.zeros((0, 2)), np.zeros(len(ptr), dtype=np.int64)
-        decay = 1.0
+        decay = blind_decay = 1.0
         if self._last_stamp_s is not None:
-            decay = math.exp(-max(stamp_s - self._last_stamp_s, 0.0) / self.config.decay_s)
+            dt = max(stamp_s - self._last_stamp_s, 0.0)
+            decay = math.exp(-dt / self.config.decay_s)
+            blind_decay = math.exp(-dt / (self.config.blind_decay_s or self.config.decay_s))
         self._last_stamp_s = stamp_s
         self._step += 1
         return _update_kernel(self._grids, self._keys, self._hit_step, self._scan_only, self._step,
                               np.ascontiguousarray(T_odom_base, dtype=np.float64),
                               np.ascontiguousarray(xy, dtype=np.float64), np.asarray(ptr, dtype=np.int64),
                               np.ascontiguousarray(scan_xy, dtype=np.float64), np.asarray(scan_ptr, dtype=np.int64),
-                              np.float32(decay), self._params, self._free_x_m)
+                              np.float32(decay), np.float32(blind_decay), self._view, self._params,
+                              self._free_x_m)
 
 
 _NO_CELL = np.iinfo(np.int64).min
@@ -180,9 +193,11 @@ _NO_CELL = np.iinfo(np.int64).min
 @njit(cache=True, error_model="numpy")
 def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, scan_only: np.ndarray, step: int,
                    T: np.ndarray, xy: np.ndarray, ptr: np.ndarray, scan_xy: np.ndarray, scan_ptr: np.ndarray,
-                   decay: np.float32, params: np.ndarray, free_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One memory update: decay, window follows the robot, hits, free space (the cone, within each band's (B, 2)
-    ``free_x`` forward interval), virtual obstacles (flat per band)."""
+                   decay: np.float32, blind_decay: np.float32, view: np.ndarray, params: np.ndarray,
+                   free_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One memory update: decay (``blind_decay`` outside the (V, 5) ``view`` sectors, when there are any), window
+    follows the robot, hits, free space (the cone, within each band's (B, 2) ``free_x`` forward interval), virtual
+    obstacles (flat per band)."""
     cell, blind, cone_range, cos_cone, emit_range = params[0], params[1], params[2], params[3], params[4]
     hit_l, miss_l, limit, occupied = np.float32(params[5]), np.float32(params[6]), np.float32(params[7]), params[8]
     ray_bin, ray_margin = params[9], params[10]
@@ -224,11 +239,12 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
             rng = math.hypot(rx, ry)
             in_cone = blind < rng < cone_range and rx > rng * cos_cone
             emit = rng < emit_range
+            cell_decay = decay if view.shape[0] == 0 or _in_view(view, rx, ry) else blind_decay
             q = -1  # direction of the cell, found when a band needs it
             for b in range(n_bands):
                 if fresh and hit_step[b, si, sj] != step:
                     scan_only[b, si, sj] = False  # a cell new to the window: no evidence yet
-                g = np.float32(0.0) if fresh else grids[b, si, sj] * decay
+                g = np.float32(0.0) if fresh else grids[b, si, sj] * cell_decay
                 if hit_step[b, si, sj] == step:
                     g += hit_l
                 elif in_cone and free_x[b, 0] <= rx <= free_x[b, 1]:
@@ -251,3 +267,18 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
     for b in range(n_bands):
         flat[out_ptr[b]:out_ptr[b + 1]] = out[b, :count[b]]
     return flat, out_ptr
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _in_view(view: np.ndarray, x: float, y: float) -> bool:
+    """Whether base-frame point (x, y) lies in one of the (V, 5) sectors ``(x, y, yaw, half_angle, range)``."""
+    for v in range(view.shape[0]):
+        dx, dy = x - view[v, 0], y - view[v, 1]
+        if math.hypot(dx, dy) > view[v, 4]:
+            continue
+        if view[v, 3] >= math.pi:
+            return True
+        off = abs((math.atan2(dy, dx) - view[v, 2] + math.pi) % (2.0 * math.pi) - math.pi)
+        if off <= view[v, 3]:
+            return True
+    return False

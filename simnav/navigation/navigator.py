@@ -355,7 +355,8 @@ class ReactiveNavigator3D:
             raise ValueError("NavigatorConfig: memory_config.whole_band_view needs the navigator's free_space_x_m "
                              "(camera_free_space(robot, bands))")
         band_view = self.free_space_x_m if cfg.memory_config.whole_band_view else None
-        self._memory = ShortTermMemory(len(self.bands), cfg.memory_config, band_view) if cfg.memory else None
+        self._memory = (ShortTermMemory(len(self.bands), cfg.memory_config, band_view, view)
+                        if cfg.memory else None)
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m

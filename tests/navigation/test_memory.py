@@ -130,3 +130,25 @@ def test_free_ranges_must_match_the_bands() -> None:
 
     with pytest.raises(ValueError, match="free_x_m must be"):
         ShortTermMemory(2, free_x_m=np.zeros((1, 2)))
+
+
+def test_what_left_every_sensors_view_fades_with_the_blind_decay() -> None:
+    from simnav.navigation.sensing import ViewSector
+
+    lidar = ViewSector(0.0, 0.0, 0.0, np.radians(120.0), 5.0)  # 240 degrees ahead
+    side, rear = np.array([[0.0, 0.5]]), np.array([[-0.5, 0.0]])  # in the lidar's view / behind it
+
+    def remembered(config: MemoryConfig, view) -> tuple[int, int]:
+        """Virtual obstacles near the side point and near the rear point 3 s after both were last seen."""
+        memory = ShortTermMemory(1, config, view=view)
+        for k in range(2):
+            memory.update(0.05 * k, np.eye(3), [np.concatenate([side, rear])])
+        for k in range(30):
+            (out,) = memory.update(0.15 + 0.1 * k, np.eye(3), [np.zeros((0, 2))])
+        near = lambda p: int(np.any(np.hypot(*(out - p).T) < 0.05))  # noqa: E731
+        return near(side[0]), near(rear[0])
+
+    cfg = MemoryConfig(decay_s=1.0, blind_decay_s=30.0)
+    assert remembered(cfg, [lidar]) == (0, 1)
+    assert remembered(MemoryConfig(decay_s=1.0), [lidar]) == (0, 0)  # the default: one decay everywhere
+    assert remembered(cfg, None) == (0, 0)  # without the sensors' view everything counts as in view
