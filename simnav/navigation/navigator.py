@@ -95,6 +95,9 @@ class NavigatorConfig:
         taken_waypoint_pass_m: a waypoint given a heading whose spot is taken (the robot standing on it at that
             heading would overlap a sensed or remembered point: an open door leaf, someone standing there) counts
             as reached within this distance: the robot lines up where it is, m.
+        taken_waypoint_wait_s: ... after the robot has stopped and waited this long for the spot to free up
+            (someone walking past it frees it in a second or two, an open door leaf does not); once per waypoint
+            (a leaf's edge found on the spot in some steps and not in others does not restart the wait), s.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
@@ -196,6 +199,7 @@ class NavigatorConfig:
     waypoint_allowed_distance_m: float = 1.0
     waypoint_heading_tolerance_rad: float = math.radians(20.0)
     taken_waypoint_pass_m: float = 0.6
+    taken_waypoint_wait_s: float = 0.0
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
     slow_down_distance_m: float = 0.6
@@ -246,6 +250,7 @@ class NavigatorConfig:
             (self.target_allowed_distance_m > 0, "target_allowed_distance_m must be > 0"),
             (0 < self.waypoint_heading_tolerance_rad <= math.pi, "waypoint_heading_tolerance_rad must be in (0, pi]"),
             (self.taken_waypoint_pass_m >= 0, "taken_waypoint_pass_m must be >= 0"),
+            (self.taken_waypoint_wait_s >= 0, "taken_waypoint_wait_s must be >= 0"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
@@ -391,6 +396,7 @@ class ReactiveNavigator3D:
         self._goal_blocked_steps = 0
         self._goal_blocked_since_s: float | None = None
         self._spot_taken_steps = 0
+        self._spot_taken_since: tuple[int, float] = (-1, math.nan)  # (waypoint, stamp) its spot was found taken
         self._turning = False
         self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
         self._seam_side = 0  # the way the robot turns on paths across alpha = +-pi: +1 left, -1 right, 0 none
@@ -438,7 +444,7 @@ class ReactiveNavigator3D:
         self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
         self._best_distance, self._best_distance_stamp_s = math.inf, None
         self._blocked_since_s = self._goal_blocked_since_s = None
-        self._spot_taken_steps = 0
+        self._spot_taken_steps, self._spot_taken_since = 0, (-1, math.nan)
         self._turning, self._turn_end = False, None
         self._squeezing, self._squeeze_stuck_xy = False, None
         self._seam_side = 0
@@ -491,8 +497,12 @@ class ReactiveNavigator3D:
             if len(virtual_xy):
                 xy, ptr = merge_bands(xy, ptr, virtual_xy, virtual_ptr)
         band_xy = [xy[ptr[b]:ptr[b + 1]] for b in range(n_bands)]
-        # A waypoint to line up at whose spot is taken, close by: reached where the robot is
+        # A waypoint to line up at whose spot is taken, close by: wait for it, then reached where the robot is
         if not self._aligning and self._lineup_spot_taken(T_odom_base, band_xy):
+            if self._spot_taken_since[0] != self._target:
+                self._spot_taken_since = (self._target, stamp_s)
+            if stamp_s - self._spot_taken_since[1] < cfg.taken_waypoint_wait_s:
+                return self._output(0.0, 0.0, dt, t0, "waiting", self._target)
             self._allowed_m[self._target] = float(np.linalg.norm(self._waypoints[self._target] - T_odom_base[:2, 2]))
             self._advance_waypoints(T_odom_base)
             if self.goal_reached:

@@ -312,13 +312,18 @@ def test_a_waypoint_with_a_heading_is_passed_facing_it_then_the_doorway_behind_i
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
 
-def _run_waypoints(nav: ReactiveNavigator3D, obstacles: np.ndarray, steps: int, dt: float = 0.05):
-    """Closed loop over the waypoints already set; returns the last command and the pose where waypoint 0 was
-    passed (None if never)."""
+def _run_waypoints(nav: ReactiveNavigator3D, obstacles, steps: int, dt: float = 0.05, states: list | None = None):
+    """Closed loop over the waypoints already set, among the (N, 3) ``obstacles`` (or a function of the time and
+    the robot's pose giving them); returns the last command and the pose where waypoint 0 was passed (None if
+    never)."""
     T, passed_at, cmd = np.eye(3), None, None
+    at = obstacles if callable(obstacles) else (lambda t_s, T: obstacles)
     for k in range(steps):
+        obstacles = at(k * dt, T)
         pts = np.column_stack([se2.transform_points(se2.inverse(T), obstacles[:, :2]), obstacles[:, 2]])
         cmd = nav.step(k * dt, T, pts)
+        if states is not None:
+            states.append(cmd.state)
         if passed_at is None and cmd.target_index >= 1:
             passed_at = T.copy()
         if cmd.state == "reached":
@@ -344,6 +349,30 @@ def test_a_waypoint_to_line_up_at_whose_spot_is_taken_is_lined_up_at_from_close_
     yaw = math.atan2(passed_at[1, 0], passed_at[0, 0])
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
+
+
+@pytest.mark.parametrize("wait_s", [0.0, 4.0])
+def test_a_lineup_spot_someone_walks_past_is_waited_for_with_the_taken_waypoint_wait(cache_dir, wait_s) -> None:
+    # the approach waypoint (2, 0.5) of the test above, heading +y; someone stands 0.15 m beside it and walks off
+    # 2 s after the robot has come within taken_waypoint_pass_m (0.6 m) of it
+    came: list[float] = []
+
+    def people(t_s: float, T: np.ndarray) -> np.ndarray:
+        if not came and np.linalg.norm(T[:2, 2] - [2.0, 0.5]) <= 0.6:
+            came.append(t_s)
+        return _person(2.15, 0.5) if not came or t_s < came[0] + 2.0 else np.zeros((0, 3))
+
+    nav = make_nav(cache_dir, taken_waypoint_wait_s=wait_s)
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.5], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]))
+    states: list[str] = []
+    cmd, passed_at = _run_waypoints(nav, people, 1200, states=states)
+    assert cmd.state == "reached"
+    if wait_s == 0.0:  # as before: lined up where the robot stood when it found the spot taken
+        assert "waiting" not in states and np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) > 0.15
+    else:  # stopped, waited for the spot to free up, then lined up on it
+        assert 0 < states.count("waiting") * 0.05 <= 2.0
+        assert np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) <= 0.15
 
 def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
     """Points on the outline of someone standing at (x, y), at the base band's height."""
