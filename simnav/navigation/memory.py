@@ -271,7 +271,8 @@ def _update_kernel(grids: np.ndarray, keys: np.ndarray, hit_step: np.ndarray, sc
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _in_view(view: np.ndarray, x: float, y: float) -> bool:
-    """Whether base-frame point (x, y) lies in one of the (V, 5) sectors ``(x, y, yaw, half_angle, range)``."""
+    """Whether base-frame point (x, y) lies in one of the (V, 5) sectors ``(x, y, yaw, half_angle, range)``: the
+    test of :meth:`simnav.navigation.sensing.ViewSector.contains`, per cell inside the kernel."""
     for v in range(view.shape[0]):
         dx, dy = x - view[v, 0], y - view[v, 1]
         if math.hypot(dx, dy) > view[v, 4]:

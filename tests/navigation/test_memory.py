@@ -152,3 +152,15 @@ def test_what_left_every_sensors_view_fades_with_the_blind_decay() -> None:
     assert remembered(cfg, [lidar]) == (0, 1)
     assert remembered(MemoryConfig(decay_s=1.0), [lidar]) == (0, 0)  # the default: one decay everywhere
     assert remembered(cfg, None) == (0, 0)  # without the sensors' view everything counts as in view
+
+
+def test_the_kernels_view_test_agrees_with_the_view_sectors() -> None:
+    from simnav.navigation.memory import _in_view
+    from simnav.navigation.sensing import ViewSector
+
+    sectors = [ViewSector(0.1, 0.0, 0.0, np.radians(120.0), 5.0), ViewSector(0.05, 0.02, 0.3, np.radians(28.0), 2.0)]
+    view = np.array([[v.x_m, v.y_m, v.yaw_rad, v.half_angle_rad, v.range_m] for v in sectors])
+    xy = np.random.default_rng(0).uniform(-6.0, 6.0, (2000, 2))
+    expected = sectors[0].contains(xy) | sectors[1].contains(xy)
+    assert 0 < expected.sum() < len(xy)
+    assert [_in_view(view, x, y) for x, y in xy] == expected.tolist()

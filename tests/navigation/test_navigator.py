@@ -319,8 +319,8 @@ def _run_waypoints(nav: ReactiveNavigator3D, obstacles, steps: int, dt: float = 
     T, passed_at, cmd = np.eye(3), None, None
     at = obstacles if callable(obstacles) else (lambda t_s, T: obstacles)
     for k in range(steps):
-        obstacles = at(k * dt, T)
-        pts = np.column_stack([se2.transform_points(se2.inverse(T), obstacles[:, :2]), obstacles[:, 2]])
+        world = at(k * dt, T)
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
         cmd = nav.step(k * dt, T, pts)
         if states is not None:
             states.append(cmd.state)
@@ -350,7 +350,6 @@ def test_a_waypoint_to_line_up_at_whose_spot_is_taken_is_lined_up_at_from_close_
     assert abs(se2.wrap_angle(yaw - np.pi / 2)) <= nav.config.waypoint_heading_tolerance_rad + 1e-9
 
 
-
 @pytest.mark.parametrize("wait_s", [0.0, 4.0])
 def test_a_lineup_spot_someone_walks_past_is_waited_for_with_the_taken_waypoint_wait(cache_dir, wait_s) -> None:
     # the approach waypoint (2, 0.5) of the test above, heading +y; someone stands 0.15 m beside it and walks off
@@ -373,6 +372,7 @@ def test_a_lineup_spot_someone_walks_past_is_waited_for_with_the_taken_waypoint_
     else:  # stopped, waited for the spot to free up, then lined up on it
         assert 0 < states.count("waiting") * 0.05 <= 2.0
         assert np.linalg.norm(passed_at[:2, 2] - [2.0, 0.5]) <= 0.15
+
 
 def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
     """Points on the outline of someone standing at (x, y), at the base band's height."""
