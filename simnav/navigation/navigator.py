@@ -176,6 +176,11 @@ class NavigatorConfig:
         give_way_on_trail: yielding backs only onto the robot's own trail, as recovery does (``recovery_trail_s``):
             the space behind a robot with a forward-looking lidar is mostly unseen, and backing wherever no point
             was sensed ran it into the walls behind it (in the flat's 1 m hallway, 12 of 17 contacts).
+        spin_limit_rad: once the robot has turned this much on the spot (within ``_SPIN_RESET_M``; None: no
+            limit), rad, it takes no path that turns it around (beyond the TP-space seam): it turns to face the
+            target the short way, when its turning circle is free, and waits there for a path that does not turn it
+            around. Without it, the way to the target blocked by people, ND picked the valley behind the robot,
+            which stayed behind it as it turned: the robot spun on the spot, back and forth, for minutes.
     """
 
     ptgs: tuple[str, ...] = ("C", "alpha", "CS")
@@ -235,6 +240,7 @@ class NavigatorConfig:
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
     give_way_on_trail: bool = True
+    spin_limit_rad: float | None = None
 
     def __post_init__(self) -> None:
         checks = [
@@ -259,6 +265,8 @@ class NavigatorConfig:
              "need squeeze_margin_m >= 0, squeeze_reach_m > 0 and squeeze_speed_m_s > 0"),
             *[(getattr(self, name) >= 0, f"{name} must be >= 0, got {getattr(self, name)}")
               for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s")],
+            (self.spin_limit_rad is None or self.spin_limit_rad > 0,
+             f"spin_limit_rad must be None or > 0 rad, got {self.spin_limit_rad}"),
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
              "need 0 <= turn_in_place_stop_rad < turn_in_place_start_rad <= pi"),
             (0 <= self.turn_in_place_stalled_rad <= self.turn_in_place_stop_rad,
@@ -398,6 +406,7 @@ class ReactiveNavigator3D:
         self._spot_taken_steps = 0
         self._spot_taken_since: tuple[int, float] = (-1, math.nan)  # (waypoint, stamp) its spot was found taken
         self._turning = False
+        self._spin: tuple[float, float, float, float] | None = None  # (x, y) spun at, last yaw, rad turned since
         self._turn_end: tuple[float, float, float] | None = None  # (stamp, x, y) where the last turn in place ended
         self._seam_side = 0  # the way the robot turns on paths across alpha = +-pi: +1 left, -1 right, 0 none
         self._trail: deque[tuple[float, float, float, float]] = deque()  # (stamp, x, y, yaw) of recent poses
@@ -479,6 +488,7 @@ class ReactiveNavigator3D:
         if len(self._waypoints) == 0 or self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached" if self.goal_reached else "idle")
         self._remember_pose(stamp_s, T_odom_base)
+        self._update_spin(T_odom_base)
         self._advance_waypoints(T_odom_base)
         if self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached")
@@ -551,6 +561,10 @@ class ReactiveNavigator3D:
             self._seam_side = 1 if w > 0 else -1
             w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
             return self._output(0.0, w, dt, t0, "turning", target_index)
+        # Spun out on the spot: no more turning around; face the target and wait for a way towards it
+        if self._spun_out() and best is not None and best.speed > 0.0 and \
+                abs(index_to_alpha(best.k, self._spaces[best.ptg].num_paths)) > _SEAM_RAD:
+            return self._face_target(dt, t0, target_base, xy, ptr, band_xy, target_index)
         recovering = self._blocked_since_s is not None and stamp_s - self._blocked_since_s < cfg.recovery_min_s
         squeeze = None
         if stalled and not recovering and cfg.squeeze and self._may_squeeze(T_odom_base):
@@ -993,6 +1007,31 @@ class ReactiveNavigator3D:
             return self._output(-cfg.recovery_speed_m_s, 0.0, dt, t0, "recovering", target_index)
         return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
 
+    def _update_spin(self, T_odom_base: np.ndarray) -> None:
+        """Add up how much the robot has turned since it last moved ``_SPIN_RESET_M`` away."""
+        x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
+        yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
+        if self._spin is None or math.hypot(x - self._spin[0], y - self._spin[1]) > _SPIN_RESET_M:
+            self._spin = (x, y, yaw, 0.0)
+            return
+        self._spin = (self._spin[0], self._spin[1], yaw, self._spin[3] + abs(se2.wrap_angle(yaw - self._spin[2])))
+
+    def _spun_out(self) -> bool:
+        """Whether the robot has turned more than ``spin_limit_rad`` on the spot."""
+        limit = self.config.spin_limit_rad
+        return limit is not None and self._spin is not None and self._spin[3] > limit
+
+    def _face_target(self, dt: float, t0: float, target_base: np.ndarray, xy: np.ndarray, ptr: np.ndarray,
+                     band_xy: list[np.ndarray], target_index: int) -> NavCommand:
+        """Turn in place towards the target (base frame, m) the short way while it lies beyond
+        ``turn_in_place_stop_rad`` and the turning circle is free; else stop (state ``waiting``)."""
+        bearing = math.atan2(float(target_base[1]), float(target_base[0]))
+        if abs(bearing) > self.config.turn_in_place_stop_rad and _circles_free(xy, ptr, self._tight_turn_radii_m):
+            w = math.copysign(self.max_w_rad_s, bearing)
+            w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
+            return self._output(0.0, w, dt, t0, "turning", target_index)
+        return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
+
     def _behind_is_free(self, band_xy: list[np.ndarray]) -> bool:
         """Whether no sensed or remembered point lies where any band's section slides straight back by
         ``recovery_clearance_m``."""
@@ -1081,6 +1120,7 @@ def _target_path_speed(lim: np.ndarray, k_t: int) -> float:
     return min(1.0, risk / _ND.risk_evaluation_distance)
 
 
+_SPIN_RESET_M = 0.3  # turning adds up towards spin_limit_rad until the robot is this far from where it began, m
 _DOORWAY_RUN = 3  # flagged waypoints this many before the held one belong to the same doorway (route_waypoints
 # puts a leave waypoint and an approach waypoint between two narrow nodes in a row)
 _TRAIL_STEP_M = 0.02

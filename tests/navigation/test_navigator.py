@@ -421,6 +421,37 @@ def test_before_a_doorway_someone_stands_in_the_robot_makes_room_then_goes_throu
     assert distances.max() < 0.6  # measured: 0.50 m throughout
 
 
+def _boxed_in_facing_the_target(nav: ReactiveNavigator3D, seconds: float = 60.0):
+    """The robot at the origin facing +x, in a box open behind (walls 0.7 m ahead and 0.8 m to each side), three
+    people standing behind it, the target 3 m ahead beyond the wall. Returns the states and yaw rates (rad/s) per
+    step and the last pose."""
+    world = np.vstack([wall(0.7, -0.8, 0.7, 0.8), wall(-0.4, 0.8, 0.7, 0.8), wall(-0.4, -0.8, 0.7, -0.8),
+                       _person(-0.9, 0.0), _person(-0.9, 0.5), _person(-0.9, -0.5)])
+    nav.set_waypoints(np.array([[3.0, 0.0]]))
+    T, dt, states, w = se2.from_xy_yaw(0.0, 0.0, 0.0), 0.05, [], []
+    for k in range(int(seconds / dt)):
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
+        cmd = nav.step(k * dt, T, pts)
+        states.append(cmd.state)
+        w.append(cmd.w_rad_s)
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    return states, np.array(w), T
+
+
+def test_spun_out_on_the_spot_the_robot_faces_the_target_and_waits(cache_dir) -> None:
+    # boxed in, the way behind taken: ND's valley lies behind the robot and stays there as it turns
+    dt = 0.05
+    states, w, T = _boxed_in_facing_the_target(make_nav(cache_dir))
+    assert np.abs(w[-400:]).sum() * dt > math.radians(180)  # still spinning in the last 20 s
+    states, w, T = _boxed_in_facing_the_target(make_nav(cache_dir, spin_limit_rad=2 * math.pi))
+    assert np.abs(w).sum() * dt < 2 * math.pi + math.pi  # one turn, then back to face the target
+    assert set(states[-400:]) == {"waiting"} and np.all(w[-400:] == 0.0)
+    assert abs(se2.to_xy_yaw(T)[2]) <= NavigatorConfig().turn_in_place_stop_rad + 0.05
+    assert float(np.hypot(*T[:2, 2])) < 0.3
+    with pytest.raises(ValueError, match="spin_limit_rad"):
+        NavigatorConfig(spin_limit_rad=0.0)
+
+
 def test_yielding_backs_only_where_the_robot_drove(cache_dir) -> None:
     # placed 0.5 m before the taken doorway with no trail behind it (a mission's start, or after an intervention),
     # the robot yields standing: its lidar does not see behind it, and no point sensed there does not make it free
