@@ -557,10 +557,8 @@ class ReactiveNavigator3D:
         stalled = best is None or best.speed <= 0.0
         if self._should_turn(stamp_s, T_odom_base, target_base, direct, xy, ptr, stalled):
             self._blocked_since_s = None
-            w = math.copysign(self.max_w_rad_s, float(target_base[1]))
-            self._seam_side = 1 if w > 0 else -1
-            w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
-            return self._output(0.0, w, dt, t0, "turning", target_index)
+            self._seam_side = 1 if math.copysign(1.0, float(target_base[1])) > 0 else -1
+            return self._output(0.0, self._turn_rate(float(target_base[1]), band_xy), dt, t0, "turning", target_index)
         # Spun out on the spot: no more turning around; face the target and wait for a way towards it
         if self._spun_out() and best is not None and best.speed > 0.0 and \
                 abs(index_to_alpha(best.k, self._spaces[best.ptg].num_paths)) > _SEAM_RAD:
@@ -1027,10 +1025,13 @@ class ReactiveNavigator3D:
         ``turn_in_place_stop_rad`` and the turning circle is free; else stop (state ``waiting``)."""
         bearing = math.atan2(float(target_base[1]), float(target_base[0]))
         if abs(bearing) > self.config.turn_in_place_stop_rad and _circles_free(xy, ptr, self._tight_turn_radii_m):
-            w = math.copysign(self.max_w_rad_s, bearing)
-            w *= self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
-            return self._output(0.0, w, dt, t0, "turning", target_index)
+            return self._output(0.0, self._turn_rate(bearing, band_xy), dt, t0, "turning", target_index)
         return self._output(0.0, 0.0, dt, t0, "waiting", target_index)
+
+    def _turn_rate(self, side: float, band_xy: list[np.ndarray]) -> float:
+        """Yaw rate (rad/s) to turn in place towards ``side`` (> 0: left), slowed near obstacles."""
+        w = math.copysign(self.max_w_rad_s, side)
+        return w * self._point_speed_scale(0.0, w, self._obstacle_speed_factor(band_xy))
 
     def _behind_is_free(self, band_xy: list[np.ndarray]) -> bool:
         """Whether no sensed or remembered point lies where any band's section slides straight back by
