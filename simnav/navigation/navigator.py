@@ -170,7 +170,9 @@ class NavigatorConfig:
             in front of the doorway, the way in blocked and the corridor behind free, while the people inside
             waited for it to make room.
         give_way_check_m: look at the doorway from this close, m.
-        give_way_distance_m: back away until this far from the doorway, m.
+        give_way_distance_m: back away until this far from the doorway, m. At 1.5 m the Giraff's front stays
+            0.5-0.6 m clear of the doorway for the people in it to step out sideways; at 1.1 m it stood on the
+            corridor node they were heading for, and both waited (the office's doorway deadlocks, see the README).
         give_way_speed_m_s: backward speed while yielding, m/s.
         give_way_clear_s: the doorway must look free this long before the robot goes on, s.
         give_way_on_trail: yielding backs only onto the robot's own trail, as recovery does (``recovery_trail_s``):
@@ -235,8 +237,8 @@ class NavigatorConfig:
     blocked_check_m: float = 2.0
     blocked_confirm_steps: int = 3
     give_way: bool = True
-    give_way_check_m: float = 1.5
-    give_way_distance_m: float = 1.1
+    give_way_check_m: float = 1.9
+    give_way_distance_m: float = 1.5
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
     give_way_on_trail: bool = True
