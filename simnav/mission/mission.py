@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Annotated, Literal, get_args, get_type_hints
@@ -312,6 +312,13 @@ class _MissionRunner:
         # robot waiting there keeps the door open
         in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
         self._unfit = self._narrow | in_swing  # no place to stand: targets and set-downs avoid these nodes
+        # two-node doorways approached along their axis, where the robot can turn in place clear of the doors' swing
+        z_max_m = max(p.z_max_m for p in robot.prisms)
+        turn_m = self._circumradius_m + self.nav.config.footprint_margin_m
+        self._axis_approach = doorway_axis_approaches(
+            nodes, self.sim.roadmap.edges, self._narrow,
+            lambda xy: np.minimum(clearance_m(self.sim.world, xy, 0.0, z_max_m),
+                                  door_swing_distance_m(self.sim.world, xy)) - turn_m)
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
@@ -435,7 +442,7 @@ class _MissionRunner:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
         xy, skip, near, heading, doorway = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
                                                            self.nav.config.waypoint_allowed_distance_m,
-                                                           self._turnable, self._keep_right_m)
+                                                           self._turnable, self._keep_right_m, self._axis_approach)
         self._route_xy = xy
         self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading, give_way=doorway)
 
@@ -645,6 +652,7 @@ def _write_nav_log(path: Path, rows: list[tuple]) -> None:
 
 def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarray, free_m: float,
                     turnable: np.ndarray | None = None, keep_right_m: np.ndarray | None = None,
+                    axis_approach: Mapping[tuple[int, int], np.ndarray] | None = None,
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The navigator's waypoints for a roadmap route: narrow nodes (doorways) must be passed through, within
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
@@ -667,6 +675,10 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
         free_m: allowed distance of the other nodes, m.
         turnable: (N,) where the robot can turn in place (default nowhere).
         keep_right_m: (N,) how far each node may be moved to the right of the route, m (default: not moved).
+        axis_approach: approach waypoints on a doorway's axis, m, keyed by (narrow node, next narrow node): a doorway
+            of two narrow nodes in a row is approached from this point, ``DOOR_APPROACH_M`` before the first on
+            the line through both, when it lies no further than half way to the previous node (see
+            :func:`doorway_axis_approaches`); by default, and for other doorways, towards the previous node.
 
     Returns:
         (W, 2) waypoints (m), (W,) may be skipped, (W,) allowed distance (m), (W,) heading to pass them at (rad,
@@ -696,7 +708,7 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach
             # waypoint, a robot can come to the wrong side of an open door leaf, with no path left around it
             near[-1] = min(near[-1], NARROW_NODE_TOLERANCE_M)
-            q = _towards(p, nodes_xy[route[i - 1]])
+            q = _approach(nodes_xy, route, i, axis_approach)
             facing = math.atan2(p[1] - q[1], p[0] - q[0]) if np.linalg.norm(p - q) > 0 else math.nan
             add(q, False, DOOR_APPROACH_TOLERANCE_M, facing)
         sharp = (turnable is not None and i > 0 and turnable[node] and not turnable[route[i - 1]]
@@ -770,6 +782,34 @@ def _route_turn_rad(nodes_xy: np.ndarray, route: Sequence[int], i: int) -> float
     if np.linalg.norm(a) == 0 or np.linalg.norm(b) == 0:
         return 0.0
     return float(se2.wrap_angle(math.atan2(b[1], b[0]) - math.atan2(a[1], a[0])))
+
+
+def _approach(nodes_xy: np.ndarray, route: Sequence[int], i: int,
+              axis_approach: Mapping[tuple[int, int], np.ndarray] | None) -> np.ndarray:
+    """The approach waypoint before the route's i-th node, narrow (i > 0; see :func:`route_waypoints`), m."""
+    p, before = nodes_xy[route[i]], nodes_xy[route[i - 1]]
+    on_axis = None if axis_approach is None or i + 1 >= len(route) else axis_approach.get((route[i], route[i + 1]))
+    if on_axis is not None and np.linalg.norm(on_axis - p) <= 0.5 * np.linalg.norm(before - p):
+        return np.asarray(on_axis, dtype=np.float64)
+    return _towards(p, before)
+
+
+def doorway_axis_approaches(nodes_xy: np.ndarray, edges: Sequence[tuple[int, int]], narrow: np.ndarray,
+                            room_m: Callable[[np.ndarray], np.ndarray]) -> dict[tuple[int, int], np.ndarray]:
+    """For each roadmap edge (a, b) between two narrow nodes (a doorway of two nodes), in either direction, the
+    point ``DOOR_APPROACH_M`` before a on the line from b through a, m, where ``room_m`` ((K, 2) points → (K,)
+    m, e.g. the distance to walls and door swings less the robot's circumradius) is not negative there. Coming at
+    such a doorway at an angle, towards the previous node, put the approach beside an open leaf's tip in the
+    office's north-east room (0.22 m from it), where the robot, lined up, found no path past the tip."""
+    pairs = [(a, b) for u, v in edges for a, b in ((u, v), (v, u)) if narrow[a] and narrow[b]]
+    if not pairs:
+        return {}
+    points = []
+    for a, b in pairs:
+        axis = nodes_xy[a] - nodes_xy[b]
+        points.append(nodes_xy[a] + DOOR_APPROACH_M * axis / max(float(np.linalg.norm(axis)), 1e-9))
+    fits = room_m(np.array(points)) >= 0.0
+    return {pair: point for pair, point, fit in zip(pairs, points, fits) if fit}
 
 
 def _towards(p: np.ndarray, q: np.ndarray) -> np.ndarray:

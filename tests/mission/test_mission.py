@@ -208,6 +208,34 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     np.testing.assert_allclose(heading[1], -np.pi / 2)
 
 
+def test_a_doorway_of_two_narrow_nodes_is_approached_along_its_axis():
+    from simnav.mission.mission import DOOR_APPROACH_M, doorway_axis_approaches, route_waypoints
+
+    # the office's north-east doorway: narrow nodes (0, 0) in the wall and (0, 0.75) inside the room, the room's
+    # node diagonally beyond; the open leaf's tip at (0.5, 1.0)
+    nodes = np.array([[0.0, -1.0], [0.0, 0.0], [0.0, 0.75], [1.5, 2.5]])
+    narrow = np.array([False, True, True, False])
+    edges = [(0, 1), (1, 2), (2, 3)]
+    tip = np.array([0.5, 1.0])
+    approaches = doorway_axis_approaches(nodes, edges, narrow, lambda xy: np.linalg.norm(xy - tip, axis=1) - 0.42)
+    np.testing.assert_allclose(approaches[(2, 1)], [0.0, 0.75 + DOOR_APPROACH_M])
+    np.testing.assert_allclose(approaches[(1, 2)], [0.0, -DOOR_APPROACH_M])
+    xy, _, _, heading, _ = route_waypoints(nodes, [3, 2, 1, 0], narrow, 1.0, axis_approach=approaches)
+    np.testing.assert_allclose(xy[1], [0.0, 0.75 + DOOR_APPROACH_M])  # on the axis, 0.6 m from the tip
+    np.testing.assert_allclose(heading[1], -np.pi / 2)  # facing straight through
+    # without it, towards the room's node: 0.2 m from the leaf's tip, where the robot found no path past it
+    xy, _, _, heading, _ = route_waypoints(nodes, [3, 2, 1, 0], narrow, 1.0)
+    assert np.linalg.norm(xy[1] - tip) < 0.25 and abs(heading[1] + np.pi / 2) > 0.5
+    # an axis point without room to turn (here: the tip closer) is left out, and the old approach taken
+    cramped = doorway_axis_approaches(nodes, edges, narrow, lambda xy: np.linalg.norm(xy - tip, axis=1) - 1.0)
+    assert (2, 1) not in cramped
+    # nor is one beyond half way to the previous node
+    close = nodes.copy()
+    close[3] = [0.3, 1.5]
+    xy, _, _, _, _ = route_waypoints(close, [3, 2, 1, 0], narrow, 1.0, axis_approach=approaches)
+    assert np.linalg.norm(xy[1] - close[2]) < DOOR_APPROACH_M
+
+
 def test_the_hallway_outside_a_doorway_is_reached_close_by_where_the_route_turns():
     from simnav.mission.mission import DOOR_APPROACH_TOLERANCE_M, NARROW_NODE_TOLERANCE_M, route_waypoints
 
