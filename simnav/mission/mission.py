@@ -302,7 +302,8 @@ class _MissionRunner:
         self.report = MissionReport(simnav.__version__, world.name, robot.name, settings.seed, settings.nav,
                                     settings.pose_source, self.sim.pedestrian_count)
         nodes = self.sim.roadmap.nodes_xy
-        node_clearance_m = clearance_m(self.sim.world, nodes, 0.0, max(p.z_max_m for p in robot.prisms))
+        z_max_m = max(p.z_max_m for p in robot.prisms)
+        node_clearance_m = clearance_m(self.sim.world, nodes, 0.0, z_max_m)
         self._narrow = node_clearance_m < NARROW_NODE_CLEARANCE_M
         self._circumradius_m = max(math.hypot(x, y) for p in robot.prisms for x, y in p.polygon)
         self._turnable = node_clearance_m >= self._circumradius_m + self.nav.config.footprint_margin_m
@@ -313,7 +314,6 @@ class _MissionRunner:
         in_swing = door_swing_distance_m(self.sim.world, nodes) < self._circumradius_m
         self._unfit = self._narrow | in_swing  # no place to stand: targets and set-downs avoid these nodes
         # two-node doorways approached along their axis, where the robot can turn in place clear of the doors' swing
-        z_max_m = max(p.z_max_m for p in robot.prisms)
         turn_m = self._circumradius_m + self.nav.config.footprint_margin_m
         self._axis_approach = doorway_axis_approaches(
             nodes, self.sim.roadmap.edges, self._narrow,

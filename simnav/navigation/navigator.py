@@ -490,7 +490,8 @@ class ReactiveNavigator3D:
         if len(self._waypoints) == 0 or self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached" if self.goal_reached else "idle")
         self._remember_pose(stamp_s, T_odom_base)
-        self._update_spin(T_odom_base)
+        if self.config.spin_limit_rad is not None:
+            self._update_spin(T_odom_base)
         self._advance_waypoints(T_odom_base)
         if self.goal_reached:
             return self._output(0.0, 0.0, dt, t0, "reached")
