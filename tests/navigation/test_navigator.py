@@ -381,15 +381,16 @@ def _person(x: float, y: float, radius: float = 0.2) -> np.ndarray:
 
 
 def _through_a_doorway(nav: ReactiveNavigator3D, start_y: float, leaves_s: float, seconds: float = 40.0,
-                       steps_in_m: float = math.inf):
+                       steps_in_m: float = math.inf, doorway_allowed_m: float = 0.3):
     """The robot at (2, start_y) facing +y drives through a 1 m doorway at (2, 1.1) (in a wall along y = 1.1) to
     (2, 2.5), the doorway flagged to yield at; someone stands in it, at (2, 1.3), from when the robot is within
-    ``steps_in_m`` of the doorway (at once by default) until ``leaves_s``. Returns the distances to the doorway and
+    ``steps_in_m`` of the doorway (at once by default) until ``leaves_s``; the doorway's waypoint is passed within
+    ``doorway_allowed_m``. Returns the distances to the doorway and
     the states while they stand there, and the last command."""
     walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
     nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
-                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
-                      give_way=np.array([False, True, False]))
+                      allowed_distance_m=np.array([0.15, doorway_allowed_m, 0.3]),
+                      headings_rad=np.array([np.pi / 2, np.nan, np.nan]), give_way=np.array([False, True, False]))
     T, dt, distances, states, stepped_in = se2.from_xy_yaw(2.0, start_y, np.pi / 2), 0.05, [], [], False
     for k in range(int(seconds / dt)):
         stepped_in = stepped_in or float(np.linalg.norm(T[:2, 2] - [2.0, 1.1])) <= steps_in_m
@@ -419,6 +420,20 @@ def test_before_a_doorway_someone_stands_in_the_robot_makes_room_then_goes_throu
     distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
     assert cmd.state == "reached" and "yielding" not in states
     assert distances.max() < 0.6  # measured: 0.50 m throughout
+
+
+def test_a_doorway_passed_but_not_crossed_can_still_be_yielded_at(cache_dir) -> None:
+    # the doorway's waypoint passed 0.6 m before it (its allowed distance), someone steps in 0.55 m before it: by
+    # default the robot, aiming beyond the doorway, does not yield
+    distances, states, cmd = _through_a_doorway(make_nav(cache_dir), -0.7, leaves_s=25.0, steps_in_m=0.55,
+                                                doorway_allowed_m=0.6)
+    assert cmd.state == "reached" and "yielding" not in states
+    assert distances.max() < 0.6  # measured: 0.47-0.57 m, pressing towards the person
+    # with give_way_until_crossed it still has the doorway ahead and makes room
+    nav = make_nav(cache_dir, give_way_until_crossed=True)
+    distances, states, cmd = _through_a_doorway(nav, -0.7, leaves_s=25.0, steps_in_m=0.55, doorway_allowed_m=0.6)
+    assert cmd.state == "reached" and "yielding" in states
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.50 m
 
 
 def _boxed_in_facing_the_target(nav: ReactiveNavigator3D, seconds: float = 60.0):
@@ -464,6 +479,50 @@ def test_yielding_backs_only_where_the_robot_drove(cache_dir) -> None:
     distances, states, cmd = _through_a_doorway(nav, 0.6, leaves_s=15.0)
     assert cmd.state == "reached"
     assert distances[-1] >= nav.config.give_way_distance_m - 0.02
+
+
+def _lined_up_at_a_doorway(nav: ReactiveNavigator3D):
+    """The robot drives north-east (45 degrees) from (0.8, -0.7) to the approach waypoint (2, 0.5) of a doorway at
+    (2, 1.1), turns in place there to face it, and then someone steps into the doorway, at (2, 1.3), for 25 s.
+    Returns the distances to the doorway, the yaws (rad) and the states while they stand there, and the last
+    command."""
+    walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
+                      give_way=np.array([False, True, False]))
+    T, dt, since, distances, yaws, states = se2.from_xy_yaw(0.8, -0.7, np.pi / 4), 0.05, None, [], [], []
+    for k in range(int(60.0 / dt)):
+        x, y, yaw = se2.to_xy_yaw(T)
+        if since is None and abs(se2.wrap_angle(yaw - np.pi / 2)) < math.radians(10) and abs(x - 2.0) < 0.15:
+            since = k * dt  # lined up on the doorway's axis
+        there = since is not None and k * dt < since + 25.0
+        world = np.vstack([walls, _person(2.0, 1.3)]) if there else walls
+        pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
+        cmd = nav.step(k * dt, T, pts)
+        if there:
+            distances.append(float(np.hypot(x - 2.0, y - 1.1)))
+            yaws.append(yaw)
+            states.append(cmd.state)
+        if cmd.state == "reached":
+            break
+        T = T @ se2.exp([cmd.v_m_s * dt, 0.0, cmd.w_rad_s * dt])
+    return np.array(distances), np.array(yaws), states, cmd
+
+
+def test_yielding_after_turning_to_face_the_doorway_can_turn_back_onto_the_trail(cache_dir) -> None:
+    # lined up facing the doorway, the robot's trail comes in at 45 degrees: backing straight would leave it, so
+    # by default it yields where it stands
+    distances, yaws, states, cmd = _lined_up_at_a_doorway(make_nav(cache_dir))
+    assert cmd.state == "reached" and "yielding" in states
+    assert np.ptp(distances) < 0.05 and distances[-1] < 0.7  # measured: 0.66-0.67 m
+    # with give_way_turn_back it turns back to the heading it came with (the doorway still ahead) and backs along
+    # its trail to give_way_distance_m
+    nav = make_nav(cache_dir, give_way_turn_back=True)
+    distances, yaws, states, cmd = _lined_up_at_a_doorway(nav)
+    assert cmd.state == "reached" and "yielding" in states
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.51 m
+    assert abs(yaws[-1] - np.pi / 4) < math.radians(25)  # facing about north-east again
+    assert "turning" not in states and distances.min() > 0.6  # never on towards the person; measured: 0.66 m
 
 
 def test_a_doorway_someone_stands_in_is_waited_for_from_where_the_robot_sees_it(cache_dir) -> None:
