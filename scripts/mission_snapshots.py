@@ -12,7 +12,8 @@ grid of views.
     python scripts/mission_snapshots.py MISSION_DIR [--intervention 1] [--before 30] [--every 3] [--span 6]
     python scripts/mission_snapshots.py MISSION_DIR --times 52 55 58 [--out views.png]
 
-With ``--intervention K`` (1-based, default 1) the views cover the ``--before`` seconds up to the K-th intervention
+A replay that leaves the recorded ``trajectory_gt.txt`` (the mission was run by other code) is drawn with a
+warning. With ``--intervention K`` (1-based, default 1) the views cover the ``--before`` seconds up to the K-th intervention
 of ``report.json``, one every ``--every`` seconds. The PNG goes to ``MISSION_DIR/snapshots-<K or times>.png``
 unless ``--out`` says otherwise.
 """
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,6 +128,26 @@ def replay(mission_dir: Path, times_s: list[float]) -> tuple[Recorder, object, o
     return recorder, world, robot
 
 
+def divergence(mission_dir: Path, views: list[View], tolerance_m: float = 0.01) -> tuple[float, float] | None:
+    """The first view's time (s) and distance (m) where the replayed robot stands more than ``tolerance_m`` from
+    the recorded ``trajectory_gt.txt`` (a run made by other code), or None while they agree or nothing is
+    recorded."""
+    from simnav.io import read_tum
+
+    path = mission_dir / "trajectory_gt.txt"
+    if not path.is_file():
+        return None
+    gt = read_tum(path)
+    for view in views:
+        k = int(np.argmin(np.abs(gt.stamps_s - view.time_s)))
+        if abs(gt.stamps_s[k] - view.time_s) > 0.05:
+            continue  # no recorded pose at that time
+        distance = float(np.hypot(*(view.T_world_base[:2, 2] - gt.T[k][:2, 3])))
+        if distance > tolerance_m:
+            return view.time_s, distance
+    return None
+
+
 def draw(views: list[View], world, robot, span_m: float, radii: tuple[float, float], title: str, out_png: Path) -> None:
     """A grid of top views, ``span_m`` wide, centred on the robot of each view."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -222,6 +244,11 @@ def main() -> None:
         raise SystemExit(f"{args.mission_dir}: {err}") from None
     if not recorder.views:
         raise SystemExit(f"the mission ended before {times[0]:.1f} s")
+    off = divergence(args.mission_dir, recorder.views)
+    if off is not None:  # drawn all the same: the replay is still a run of these settings
+        print(f"warning: the replay is not the recorded run: at {off[0]:.1f} s the robot stands {off[1]:.2f} m from "
+              f"its pose in trajectory_gt.txt (the mission was run by other code; replay it with that version)",
+              file=sys.stderr)
     out = args.out or args.mission_dir / f"snapshots-{suffix}.png"
     draw(recorder.views, world, robot, args.span, (recorder.pedestrian_radius_m, recorder.robot_radius_m),
          f"{args.mission_dir.name}: {title}", out)

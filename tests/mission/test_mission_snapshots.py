@@ -56,3 +56,27 @@ def test_the_views_are_drawn_and_bad_input_is_one_line(mission_dir, tmp_path) ->
     assert "Traceback" not in no_intervention.stderr
     missing = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path)], capture_output=True, text=True)
     assert missing.returncode == 1 and "world.yaml: not found" in missing.stderr
+
+
+def test_a_replay_that_leaves_the_recorded_run_is_drawn_with_a_warning(mission_dir, tmp_path) -> None:
+    # the same folder, its recorded trajectory moved 0.3 m along x from 2 s on (as if other code had run it)
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for f in ("world.yaml", "robot.yaml", "mission.yaml", "report.json"):
+        (moved / f).write_text((mission_dir / f).read_text())
+    lines = []
+    for line in (mission_dir / "trajectory_gt.txt").read_text().splitlines():
+        cols = line.split()
+        if cols and not line.startswith("#") and float(cols[0]) >= 2.0:
+            cols[1] = f"{float(cols[1]) + 0.3:.6f}"
+        lines.append(" ".join(cols))
+    (moved / "trajectory_gt.txt").write_text("\n".join(lines) + "\n")
+    script = _script()
+    recorder, _, _ = script.replay(mission_dir, [1.0, 3.0])
+    assert script.divergence(mission_dir, recorder.views) is None
+    time_s, distance_m = script.divergence(moved, recorder.views)
+    assert time_s == pytest.approx(3.0) and distance_m == pytest.approx(0.3, abs=1e-3)
+    result = subprocess.run([sys.executable, str(SCRIPT), str(moved), "--times", "1", "3", "--out",
+                             str(tmp_path / "v.png")], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and "2 views" in result.stdout
+    assert "warning: the replay is not the recorded run: at 3.0 s" in result.stderr
