@@ -34,6 +34,7 @@ from pydantic import ValidationError
 
 from simnav.errors import SimnavError
 from simnav.geometry import se2
+from simnav.io import read_tum
 from simnav.mission.mission import MissionSettings, run_mission
 from simnav.navigation.bands import FLOOR_TOLERANCE_M
 from simnav.robot import load_robot
@@ -132,8 +133,6 @@ def divergence(mission_dir: Path, views: list[View], tolerance_m: float = 0.01) 
     """The first view's time (s) and distance (m) where the replayed robot stands more than ``tolerance_m`` from
     the recorded ``trajectory_gt.txt`` (a run made by other code), or None while they agree or nothing is
     recorded."""
-    from simnav.io import read_tum
-
     path = mission_dir / "trajectory_gt.txt"
     if not path.is_file():
         return None
