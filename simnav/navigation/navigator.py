@@ -702,7 +702,7 @@ class ReactiveNavigator3D:
         cfg = self.config
         ahead = [k for k in (self._target, self._target + 1) if k < len(self._waypoints) - 1 and self._give_way[k]]
         short = [k for k in range(max(self._target - _DOORWAY_RUN, 0), self._target)
-                 if cfg.give_way_until_crossed and self._give_way[k] and self._short_of(T_odom_base, k)]
+                 if self._give_way[k] and self._short_of(T_odom_base, k)] if cfg.give_way_until_crossed else []
         k = ahead[0] if ahead else short[-1] if short else -1
         if not cfg.give_way or k < 0 or self._doorway_distance_m(T_odom_base, k) > cfg.give_way_check_m:
             self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
