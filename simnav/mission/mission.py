@@ -658,7 +658,9 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
     ``NARROW_NODE_TOLERANCE_M``, lined up by an approach waypoint ``DOOR_APPROACH_M`` before them (towards the
     previous node; to be passed within ``DOOR_APPROACH_TOLERANCE_M``, facing the narrow node) and left through one as
     far after them (towards the next node, skippable); other nodes may be cut once a later waypoint is reachable and
-    count as passed within ``free_m`` (the one before a narrow node within ``NARROW_NODE_TOLERANCE_M``). The first
+    count as passed within ``free_m`` (the ones before and after a narrow node within ``NARROW_NODE_TOLERANCE_M``:
+    passed from 1 m away, the node inside a room, the robot still in the doorway, it turned towards the room's next
+    node beside the open door leaf and found no path past its tip). The first
     narrow node after one where the robot cannot turn in place (a doorway), where it can (``turnable``: the
     hallway outside the doorway) and the route turns by more than ``TURNING_NODE_RAD``, is passed within
     ``DOOR_APPROACH_TOLERANCE_M`` (the navigator then turns in place towards the next waypoint): a robot that
@@ -702,7 +704,9 @@ def route_waypoints(nodes_xy: np.ndarray, route: Sequence[int], narrow: np.ndarr
             if lineup is not None:
                 add(p, False, DOOR_APPROACH_TOLERANCE_M, lineup)
             else:
-                add(_right_of_route(nodes_xy, route, i, narrow, keep_right_m), True, free_m)
+                after_doorway = i > 0 and narrow[route[i - 1]]  # the node inside a room (or outside it): close by
+                add(_right_of_route(nodes_xy, route, i, narrow, keep_right_m), True,
+                    NARROW_NODE_TOLERANCE_M if after_doorway else free_m)
             continue
         if i > 0:
             # the node before counts as passed only close by: passed from 1 m away, cutting towards the approach

@@ -192,9 +192,9 @@ def test_a_doorway_on_the_route_is_lined_up_before_and_passed_through():
     np.testing.assert_allclose(xy, [[0, 0], [3, -2], [3, -DOOR_APPROACH_M], [3, 0], [3, DOOR_APPROACH_M], [3, 2],
                                     [3, 2.5]])
     assert skip.tolist() == [True, True, False, False, True, True, True]
-    # the node before the doorway is passed close by (or cut once the approach is reachable)
-    assert near.tolist() == [1.0, NARROW_NODE_TOLERANCE_M, DOOR_APPROACH_TOLERANCE_M] + [NARROW_NODE_TOLERANCE_M] * 2 \
-        + [1.0, 1.0]
+    # the nodes before and after the doorway are passed close by (or cut once a later waypoint is reachable)
+    assert near.tolist() == [1.0, NARROW_NODE_TOLERANCE_M, DOOR_APPROACH_TOLERANCE_M] + [NARROW_NODE_TOLERANCE_M] * 3 \
+        + [1.0]
     # the approach waypoint is passed facing the doorway (+y); the others at any heading
     np.testing.assert_allclose(heading[2], np.pi / 2)
     assert np.isnan(np.delete(heading, 2)).all()
