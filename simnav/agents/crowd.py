@@ -10,10 +10,12 @@ doorway) end when one of them, the one of lower priority after 1.5 s or either a
 moment. Anybody who comes less than 0.3 m closer to their next waypoint in 10 s re-plans from the nearest
 roadmap node in sight to a new goal, preferring one whose route turns back (two people or a person and a robot
 facing each other in a hallway too narrow to pass otherwise wait for ever); so does anybody blocked by a robot
-again soon after stepping aside for it, and for ``ROBOT_AVOID_S`` after giving up on a robot they pick only goals
-whose route keeps clear of where it stood (else they kept coming back to it: in a flat, every room but the one
-they turned back into lies past the robot in the hallway). People keep ``circle_clearance_m`` of personal space
-from a robot (the round obstacles).
+again soon after stepping aside for it, or stuck with a robot's rim within ``ROBOT_PASSING_GAP_M`` (pinned beside
+it, between it and a wall or a post, out of the way ahead that face-offs look at: people coming out of a doorway
+stood in its mouth beside a robot yielding there, and the robot waited for them), and for ``ROBOT_AVOID_S`` after
+giving up on a robot they pick only goals whose route keeps clear of where it stood (else they kept coming back to
+it: in a flat, every room but the one they turned back into lies past the robot in the hallway). People keep
+``circle_clearance_m`` of personal space from a robot (the round obstacles).
 
 People can also wait before a single-file stretch that a robot is in (``single_file_wait_s`` > 0; off by default,
 as it did not lower the flat's interventions, see the README): someone about to leave
@@ -338,6 +340,8 @@ class Crowd:
                 self._step_back(int(k), int(blocker), circles)
             elif robot_again:
                 self._give_up_on_robot(int(k), circles[blocker - n], walls)
+            elif (beside := self._robot_beside(int(k), circles)) is not None:
+                self._give_up_on_robot(int(k), circles[beside], walls)
             else:
                 self._replan_stuck(int(k), walls)
             if blocker >= n:
@@ -556,6 +560,16 @@ class Crowd:
         self._avoid[k] = (circle[0], circle[1], circle[2] + self.radius_m + ROBOT_PASSING_GAP_M)
         self._avoid_until_s[k] = self._time_s + ROBOT_AVOID_S
         self._replan_stuck(k, walls)
+
+    def _robot_beside(self, k: int, circles: np.ndarray) -> int | None:
+        """The index of the nearest of the (C, 3) ``circles`` (robots, personal space included) whose rim is within
+        ``ROBOT_PASSING_GAP_M`` of stuck pedestrian k's, or None: someone pinned beside a robot (between it and a
+        wall or a post, out of the way ahead that face-offs look at) gives up on getting past it."""
+        if len(circles) == 0:
+            return None
+        gaps = np.hypot(*(circles[:, :2] - self._pos[k]).T) - circles[:, 2] - self.radius_m
+        nearest = int(np.argmin(gaps))
+        return nearest if gaps[nearest] <= ROBOT_PASSING_GAP_M else None
 
     def _replan_stuck(self, k: int, walls: Segments) -> None:
         """Pedestrian k, stuck, heads for a new goal from the nearest roadmap node in sight (``walls``): of up to

@@ -267,6 +267,47 @@ def test_who_gave_up_on_a_robot_keeps_away_from_it_for_a_while(monkeypatch, avoi
         assert back_s is not None and back_s < gave_up_s + 15.0
 
 
+def _octagon(cx: float, cy: float, r: float) -> list:
+    pts = [(cx + r * math.cos(math.pi * i / 4), cy + r * math.sin(math.pi * i / 4)) for i in range(8)]
+    return [[pts[i], pts[(i + 1) % 8]] for i in range(8)]
+
+
+# a 2.1 m corridor along x, a room off it through a 0.9 m doorway (x 9.0-9.9), a post in the corridor at (10.2, -0.8)
+MOUTH_WALLS = np.array(
+    [
+        [[4.0, -1.05], [15.0, -1.05]], [[4.0, 1.05], [9.0, 1.05]], [[9.9, 1.05], [15.0, 1.05]],
+        [[4.0, -1.05], [4.0, 1.05]], [[15.0, -1.05], [15.0, 1.05]],
+        [[8.0, 1.05], [8.0, 4.5]], [[11.0, 1.05], [11.0, 4.5]], [[8.0, 4.5], [11.0, 4.5]],
+        *_octagon(10.2, -0.8, 0.2),
+    ]
+)
+MOUTH_NODES = np.array([[5.0, 0.0], [7.6, 0.0], [9.45, 0.0], [11.4, 0.0], [13.3, 0.0], [9.45, 1.1], [9.45, 1.85],
+                        [9.45, 3.5], [8.6, 3.8], [10.4, 3.8]])
+MOUTH_EDGES = [(0, 1), (1, 2), (2, 3), (3, 4), (2, 5), (5, 6), (6, 7), (7, 8), (7, 9)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nobody_stays_pinned_beside_a_robot_standing_in_a_doorway_mouth(seed: int) -> None:
+    # a robot (the Giraff's circumradius) stands in the corridor before the doorway, as one yielding there does:
+    # someone coming out and turning along the corridor, or walking between it and the post, stands pinned with
+    # the robot beside them, out of the way ahead that face-offs look at; stuck, they give up on getting past it
+    # (without the rule someone stood there longer than 12 s in each of these seeds, and the robot waited for them)
+    robot = np.array([[9.63, 0.13, 0.3677]])
+    crowd = Crowd(RoadmapGraph(MOUTH_NODES, MOUTH_EDGES), MOUTH_WALLS, 6, np.random.default_rng(seed),
+                  keep_out=np.array([[9.63, 0.13, 0.9]]))
+    dt = 0.04
+    pinned_s, longest_s, near_s = np.zeros(crowd.count), np.zeros(crowd.count), 0.0
+    for _ in range(int(120.0 / dt)):
+        crowd.step(dt, circles=robot, circle_velocities=np.zeros((1, 2)))
+        gap = np.linalg.norm(crowd.positions_xy - robot[0, :2], axis=1) - crowd.radius_m - robot[0, 2]
+        slow = np.linalg.norm(crowd.velocities_xy, axis=1) < 0.1
+        pinned_s = np.where((gap < 0.5) & slow, pinned_s + dt, 0.0)
+        longest_s = np.maximum(longest_s, pinned_s)
+        near_s += dt * float(np.sum(gap < 0.5))
+    assert near_s > 20.0  # people did come by the robot ...
+    assert np.all(longest_s < 12.0)  # ... and nobody stood beside it much past the 10 s stuck rule
+
+
 # a 4 x 4 m room (its node has room to pass a robot) opening onto a 1 m hallway (single file) along +x
 ROOM_AND_HALLWAY_WALLS = np.array(
     [

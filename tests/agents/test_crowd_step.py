@@ -54,7 +54,7 @@ class ReferenceCrowd(Crowd):
         self._pos = resolved
         self._reference_yaws(dt_s)
         self._reference_blocking(dt_s, circles, segs, standing)
-        self._reference_stuck(segs, standing)
+        self._reference_stuck(segs, standing, circles)
 
     def _reference_pairs(self, points, dynamic_segments):
         segs = self._walls
@@ -115,7 +115,7 @@ class ReferenceCrowd(Crowd):
             if by_robot:
                 self._robot_yield_t[k] = self._time_s
 
-    def _reference_stuck(self, walls, standing):
+    def _reference_stuck(self, walls, standing, circles):
         closer = (np.linalg.norm(self._anchor_xy - self._target, axis=1)
                   - np.linalg.norm(self._pos - self._target, axis=1))
         new_target = np.any(self._target != self._anchor_goal, axis=1)
@@ -123,8 +123,13 @@ class ReferenceCrowd(Crowd):
         self._anchor_xy[reset] = self._pos[reset]
         self._anchor_goal[reset] = self._target[reset]
         self._anchor_t[reset] = self._time_s
+        c = np.zeros((0, 3)) if circles is None else np.asarray(circles, dtype=float)
         for k in np.nonzero(self._time_s - self._anchor_t >= crowd_module.STUCK_TIME_S)[0]:
-            self._replan_stuck(int(k), walls)
+            gaps = np.linalg.norm(c[:, :2] - self._pos[k], axis=1) - c[:, 2] - self.radius_m
+            if len(c) and gaps.min() <= crowd_module.ROBOT_PASSING_GAP_M:  # pinned beside a robot: gives up on it
+                self._give_up_on_robot(int(k), c[int(np.argmin(gaps))], walls)
+            else:
+                self._replan_stuck(int(k), walls)
 
 
 def _discrete_state(crowd: Crowd) -> list[np.ndarray]:
