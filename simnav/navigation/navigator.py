@@ -123,8 +123,9 @@ class NavigatorConfig:
             doorway, may need more room than one backing gives); in front of a taken goal, after waiting this
             long, back away while the space behind is free (no trail needed), s.
         recovery_clearance_m: back away only if the space behind is free for this distance, m.
-        recovery_trail_s: backing away only goes where the robot itself drove, facing the same way, within this
-            many seconds: the sensors see little behind the robot, the path it came along was free, s.
+        recovery_trail_s: backing away only goes where the robot itself drove, facing the same way (within 0.1 m
+            and 20 degrees; yielding: every vertex of its sections within ``footprint_margin_m`` of where it was),
+            within this many seconds: the sensors see little behind the robot, the path it came along was free, s.
         turn_in_place: turn in place towards a target that no path reaches (see the module doc).
         turn_in_place_start_rad: ... when the target lies further than this off the heading, rad.
         turn_in_place_stop_rad: ... until it lies within this, or a path reaches it, rad.
@@ -175,9 +176,10 @@ class NavigatorConfig:
             corridor node they were heading for, and both waited (the office's doorway deadlocks, see the README).
         give_way_speed_m_s: backward speed while yielding, m/s.
         give_way_clear_s: the doorway must look free this long before the robot goes on, s.
-        give_way_on_trail: yielding backs only onto the robot's own trail, as recovery does (``recovery_trail_s``):
-            the space behind a robot with a forward-looking lidar is mostly unseen, and backing wherever no point
-            was sensed ran it into the walls behind it (in the flat's 1 m hallway, 12 of 17 contacts).
+        give_way_on_trail: yielding backs only onto the robot's own trail, as recovery does (``recovery_trail_s``),
+            its footprint where it was: the space behind a robot with a forward-looking lidar is mostly unseen, and
+            backing wherever no point was sensed ran it into the walls behind it (in the flat's 1 m hallway, 12 of
+            17 contacts).
         give_way_turn_back: off its trail when yielding (it turned in place to face the doorway at the doorway's
             approach waypoint), first turn in place back to a heading it came there with, the doorway kept within
             60 degrees of the heading, then back along the trail; without it the robot stands where it turned.
@@ -382,6 +384,7 @@ class ReactiveNavigator3D:
         self._memory = (ShortTermMemory(len(self.bands), cfg.memory_config, band_view, view)
                         if cfg.memory else None)
         self._band_boxes = [(band.polygon.min(axis=0), band.polygon.max(axis=0)) for band in self.bands]
+        self._outline_xy = np.unique(np.concatenate([band.polygon for band in self.bands]), axis=0)  # (V, 2) base
         circumradii_m = np.array([float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands])
         self._turn_radii_m = circumradii_m + cfg.footprint_margin_m
         self._tight_turn_radii_m = circumradii_m + min(cfg.footprint_margin_m, _TIGHT_TURN_MARGIN_M)
@@ -750,7 +753,7 @@ class ReactiveNavigator3D:
         if float(spot_base[0]) <= 0.0 or self._doorway_distance_m(T_odom_base, doorway) >= cfg.give_way_distance_m:
             return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
         # Back straight while the space behind is free (and on the trail)
-        if self._behind_is_free(band_xy) and (not cfg.give_way_on_trail or self._behind_is_trail(T_odom_base)):
+        if self._behind_is_free(band_xy) and (not cfg.give_way_on_trail or self._behind_is_trail(T_odom_base, True)):
             return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
         # Off the trail: turn back towards a heading the robot came here with
         if cfg.give_way_on_trail and cfg.give_way_turn_back and _circles_free(xy, ptr, self._turn_radii_m):
@@ -1091,21 +1094,38 @@ class ReactiveNavigator3D:
         while trail and trail[0][0] < stamp_s - self.config.recovery_trail_s:
             trail.popleft()
 
-    def _behind_is_trail(self, T_odom_base: np.ndarray) -> bool:
+    def _behind_is_trail(self, T_odom_base: np.ndarray, footprint: bool = False) -> bool:
         """Whether the robot, moved straight back by ``recovery_clearance_m``, stands where it stood recently with
-        about the same heading (within 0.1 m and 20 degrees)."""
+        about the same heading (:meth:`_backs_onto_trail`; ``footprint``: its footprint where it was)."""
         yaw = math.atan2(T_odom_base[1, 0], T_odom_base[0, 0])
         return bool(self._trail) and bool(self._backs_onto_trail(np.array(self._trail), T_odom_base[:2, 2],
-                                                                   np.array([yaw]))[0])
+                                                                   np.array([yaw]), footprint)[0])
 
-    def _backs_onto_trail(self, trail: np.ndarray, xy: np.ndarray, yaws_rad: np.ndarray) -> np.ndarray:
+    def _backs_onto_trail(self, trail: np.ndarray, xy: np.ndarray, yaws_rad: np.ndarray,
+                          footprint: bool = False) -> np.ndarray:
         """(H,) bool: whether a robot at ``xy`` (fixed frame, m) facing each of ``yaws_rad`` (H,), moved straight
-        back by ``recovery_clearance_m``, stands within 0.1 m and 20 degrees of a pose of ``trail`` (N, 4)."""
+        back by ``recovery_clearance_m``, stands within 0.1 m and 20 degrees of a pose of ``trail`` (N, 4), or,
+        with ``footprint``, where it stood at one: every vertex of its bands' sections within
+        ``footprint_margin_m`` of where that vertex was."""
         reach = self.config.recovery_clearance_m
         back_x, back_y = xy[0] - reach * np.cos(yaws_rad), xy[1] - reach * np.sin(yaws_rad)
-        near = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None]) <= 0.1
-        aligned = np.abs(se2.wrap_angle(trail[None, :, 3] - yaws_rad[:, None])) <= math.radians(20)
-        return np.any(near & aligned, axis=1)
+        if not footprint:
+            near = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None]) <= 0.1
+            aligned = np.abs(se2.wrap_angle(trail[None, :, 3] - yaws_rad[:, None])) <= math.radians(20)
+            return np.any(near & aligned, axis=1)
+        tol = self.config.footprint_margin_m
+        near = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None]) <= tol
+        hits = np.zeros(len(yaws_rad), dtype=bool)
+        for h, n in zip(*np.nonzero(near), strict=True):
+            if hits[h]:
+                continue
+            # vertex offsets: (p_b - p_t) + (R_b - R_t) c for every outline vertex c
+            cb, sb, ct, st = math.cos(yaws_rad[h]), math.sin(yaws_rad[h]), math.cos(trail[n, 3]), math.sin(trail[n, 3])
+            c = self._outline_xy
+            dx = back_x[h] - trail[n, 1] + (cb - ct) * c[:, 0] - (sb - st) * c[:, 1]
+            dy = back_y[h] - trail[n, 2] + (sb - st) * c[:, 0] + (cb - ct) * c[:, 1]
+            hits[h] = float(np.max(dx * dx + dy * dy)) <= tol * tol
+        return hits
 
     def _trail_turn(self, T_odom_base: np.ndarray, doorway_bearing_rad: float) -> float | None:
         """The smallest turn in place (rad, > 0: left) to a heading of a trail pose within 0.1 m of the robot from
@@ -1119,7 +1139,7 @@ class ReactiveNavigator3D:
         yaws = trail[np.hypot(trail[:, 1] - xy[0], trail[:, 2] - xy[1]) <= 0.1, 3]
         turns = se2.wrap_angle(yaws - math.atan2(T_odom_base[1, 0], T_odom_base[0, 0]))
         ok = (np.abs(se2.wrap_angle(doorway_bearing_rad - turns)) < _DOORWAY_IN_VIEW_RAD) & \
-            self._backs_onto_trail(trail, xy, yaws)
+            self._backs_onto_trail(trail, xy, yaws, footprint=True)
         return float(turns[ok][np.argmin(np.abs(turns[ok]))]) if np.any(ok) else None
 
     # ---------------------------------------------------------------------------------------------- output

@@ -433,7 +433,8 @@ def test_a_doorway_passed_but_not_crossed_can_still_be_yielded_at(cache_dir) -> 
     nav = make_nav(cache_dir, give_way_until_crossed=True)
     distances, states, cmd = _through_a_doorway(nav, -0.7, leaves_s=25.0, steps_in_m=0.55, doorway_allowed_m=0.6)
     assert cmd.state == "reached" and "yielding" in states
-    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.50 m
+    # to give_way_distance_m, or as far as its trail of the last recovery_trail_s goes: measured 1.46 m
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.05
 
 
 def _boxed_in_facing_the_target(nav: ReactiveNavigator3D, seconds: float = 60.0):
@@ -843,3 +844,19 @@ def test_where_nd_finds_no_gap_its_fallback_takes_the_free_paths(cache_dir, fall
         assert best is None  # the robot would back away or wait
     else:
         assert best.ptg == 1 and 20 <= best.k <= 41 and best.speed > 0  # measured: path 40, free 0.62, speed 1
+
+
+@pytest.mark.parametrize(("turned_deg", "backs"), [(0.0, True), (2.0, True), (12.0, False), (-18.0, False)])
+def test_yielding_backs_onto_the_trail_only_with_the_footprint_where_it_was(cache_dir, turned_deg: float,
+                                                                           backs: bool) -> None:
+    # the robot drove 1.5 m straight along +x, then turned in place (askew in a doorway, say): backing straight
+    # to yield lands on the trail only if its every corner stays within the footprint margin of where it was
+    # (turned 12 degrees, the corners of the 0.6 m base lie 9 cm off where they were: a door jamb beside one is
+    # hit); recovery still backs within 0.1 m and 20 degrees of a trail pose
+    nav = make_nav(cache_dir)
+    for k in range(76):
+        nav._remember_pose(0.1 * k, se2.from_xy_yaw(0.02 * k, 0.0, 0.0))
+    T = se2.from_xy_yaw(1.5, 0.0, math.radians(turned_deg))
+    nav._remember_pose(8.0, T)
+    assert nav._behind_is_trail(T, footprint=True) is backs
+    assert nav._behind_is_trail(T) is (abs(turned_deg) <= 20.0)
