@@ -1109,22 +1109,19 @@ class ReactiveNavigator3D:
         ``footprint_margin_m`` of where that vertex was."""
         reach = self.config.recovery_clearance_m
         back_x, back_y = xy[0] - reach * np.cos(yaws_rad), xy[1] - reach * np.sin(yaws_rad)
+        dist = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None])  # (H, N)
         if not footprint:
-            near = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None]) <= 0.1
             aligned = np.abs(se2.wrap_angle(trail[None, :, 3] - yaws_rad[:, None])) <= math.radians(20)
-            return np.any(near & aligned, axis=1)
+            return np.any((dist <= 0.1) & aligned, axis=1)
+        # vertex offsets (p_b - p_t) + (R_b - R_t) c of every outline vertex c, for the pairs whose centres are near
         tol = self.config.footprint_margin_m
-        near = np.hypot(trail[None, :, 1] - back_x[:, None], trail[None, :, 2] - back_y[:, None]) <= tol
+        h, n = np.nonzero(dist <= tol)
+        dc, ds = np.cos(yaws_rad[h]) - np.cos(trail[n, 3]), np.sin(yaws_rad[h]) - np.sin(trail[n, 3])
+        cx, cy = self._outline_xy[:, 0], self._outline_xy[:, 1]
+        dx = (back_x[h] - trail[n, 1])[:, None] + dc[:, None] * cx - ds[:, None] * cy
+        dy = (back_y[h] - trail[n, 2])[:, None] + ds[:, None] * cx + dc[:, None] * cy
         hits = np.zeros(len(yaws_rad), dtype=bool)
-        for h, n in zip(*np.nonzero(near), strict=True):
-            if hits[h]:
-                continue
-            # vertex offsets: (p_b - p_t) + (R_b - R_t) c for every outline vertex c
-            cb, sb, ct, st = math.cos(yaws_rad[h]), math.sin(yaws_rad[h]), math.cos(trail[n, 3]), math.sin(trail[n, 3])
-            c = self._outline_xy
-            dx = back_x[h] - trail[n, 1] + (cb - ct) * c[:, 0] - (sb - st) * c[:, 1]
-            dy = back_y[h] - trail[n, 2] + (sb - st) * c[:, 0] + (cb - ct) * c[:, 1]
-            hits[h] = float(np.max(dx * dx + dy * dy)) <= tol * tol
+        hits[h[np.max(dx * dx + dy * dy, axis=1) <= tol * tol]] = True
         return hits
 
     def _trail_turn(self, T_odom_base: np.ndarray, doorway_bearing_rad: float) -> float | None:
