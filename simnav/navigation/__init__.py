@@ -10,7 +10,8 @@
   disk, giving TP-obstacles (normalised collision-free distance per path); :mod:`simnav.navigation.ptgspace`
   combines a PTG's grids over the bands (eq. 6.4).
 * :mod:`simnav.navigation.holonomic`: ND and VFF in TP-space.
-* :mod:`simnav.navigation.memory`: short-term memory; :mod:`simnav.navigation.sensing`: readings to points.
+* :mod:`simnav.navigation.memory`: short-term memory and where the lidar saw free space;
+  :mod:`simnav.navigation.sensing`: readings to points.
 
 No simulator imports (mujoco, meshcat, dynamixel_sdk).
 """

@@ -21,6 +21,9 @@ taken to start at the base origin). A person who walks around the robot then lea
 obstacles behind for the seconds of the decay; a cell any other sensor hit (a low box below the scan plane, a bar
 above it) keeps its evidence until it decays.
 
+:class:`ScanHistory` keeps where a level lidar saw free space over the last seconds, not decaying: yielding at a
+doorway backs the robot into it when it lies off the robot's own trail (``NavigatorConfig.give_way_seen_free_s``).
+
 As §6.C.7 reports, the memory carries the pose estimate's errors into the obstacles; with a drifting odometry
 it can close gaps the robot would fit through, so it can be switched off (``NavigatorConfig.memory``).
 """
@@ -28,11 +31,14 @@ it can close gaps the robot would fit through, so it can be switched off (``Navi
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+
+from simnav.geometry import se2
 
 
 @dataclass(frozen=True)
@@ -283,3 +289,113 @@ def _in_view(view: np.ndarray, x: float, y: float) -> bool:
         if off <= view[v, 3]:
             return True
     return False
+
+
+class ScanHistory:
+    """Where a level 2D lidar saw free space over the last seconds, to back into space no sensor sees now.
+
+    Keeps, for the scans of the last ``keep_s`` seconds taken at least ``step_m`` or ``step_rad`` apart in pose,
+    the range of the nearest scan point per bearing bin (``bin_rad`` wide) from the lidar's position ``origin_xy``
+    in the base frame. A point counts as seen free when the newest kept scan with a return in the bearings of the
+    disk of radius ``clearance_m`` around the point saw every return in those bearings at least ``clearance_m``
+    beyond the point: no scan point in the disk, nor in the cone behind it up to ``clearance_m`` further (a ray
+    may pass a door jamb closely). Walls and furniture in the lidar's plane stay where a scan saw them, so the
+    space before them stays free of them however old the scan; people and door leaves may have moved in since,
+    and obstacles above or below the scan plane are not seen.
+
+    Args:
+        origin_xy: (2,) the lidar's position in the base frame, m.
+        keep_s: how long scans are kept, s.
+        bin_rad: width of a bearing bin, rad.
+        clearance_m: radius of the disk around a point that must be seen free, m (> 0).
+        step_m, step_rad: a scan is kept only this far in position or heading from the last kept one (m, rad).
+    """
+
+    def __init__(self, origin_xy: Sequence[float] = (0.0, 0.0), keep_s: float = 20.0,
+                 bin_rad: float = math.radians(1.0), clearance_m: float = 0.1, step_m: float = 0.05,
+                 step_rad: float = math.radians(5.0)) -> None:
+        if not (keep_s > 0 and 0 < bin_rad <= math.pi / 4 and clearance_m > 0 and min(step_m, step_rad) >= 0):
+            raise ValueError(f"ScanHistory: need keep_s > 0, bin_rad in (0, pi/4], clearance_m > 0 and step_m, "
+                             f"step_rad >= 0; got keep_s={keep_s}, bin_rad={bin_rad}, clearance_m={clearance_m}, "
+                             f"step_m={step_m}, step_rad={step_rad}")
+        self.origin_xy = np.asarray(origin_xy, dtype=np.float64).reshape(2)
+        self.keep_s, self.bin_rad, self.clearance_m = float(keep_s), float(bin_rad), float(clearance_m)
+        self.step_m, self.step_rad = float(step_m), float(step_rad)
+        self._bins = int(math.ceil(2 * math.pi / self.bin_rad))
+        self._stamps: deque[float] = deque()
+        self._poses: deque[np.ndarray] = deque()  # (3, 3) T_odom_lidar
+        self._ranges: deque[list[np.ndarray]] = deque()  # nearest return per bin (inf: none), as a range-min table
+
+    def reset(self) -> None:
+        """Forget every scan."""
+        for kept in (self._stamps, self._poses, self._ranges):
+            kept.clear()
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, stamp_s: float, T_odom_base: np.ndarray, scan_xy_base: np.ndarray) -> None:
+        """Keep one scan: (S, 2) its points in the base frame at ``T_odom_base`` (3, 3), m."""
+        T_odom_lidar = np.array(T_odom_base, dtype=np.float64) @ se2.from_xy_yaw(*self.origin_xy, 0.0)
+        while self._stamps and self._stamps[0] < stamp_s - self.keep_s:
+            for kept in (self._stamps, self._poses, self._ranges):
+                kept.popleft()
+        if self._poses:
+            last = self._poses[-1]
+            moved = math.hypot(*(T_odom_lidar[:2, 2] - last[:2, 2]))
+            turned = abs(se2.wrap_angle(math.atan2(T_odom_lidar[1, 0], T_odom_lidar[0, 0])
+                                        - math.atan2(last[1, 0], last[0, 0])))
+            if moved < self.step_m and turned < self.step_rad:
+                return
+        d = np.asarray(scan_xy_base, dtype=np.float64).reshape(-1, 2) - self.origin_xy
+        ranges = np.full(self._bins, np.inf)
+        np.minimum.at(ranges, self._bin(np.arctan2(d[:, 1], d[:, 0])), np.hypot(d[:, 0], d[:, 1]))
+        self._stamps.append(float(stamp_s))
+        self._poses.append(T_odom_lidar)
+        self._ranges.append(_range_min_table(np.tile(ranges, 3)))  # three times round: windows wrap
+
+    def seen_free(self, points_odom: np.ndarray) -> np.ndarray:
+        """(P,) bool: whether each of the (P, 2) points (odom frame, m) was seen free (see the class docstring)."""
+        pts = np.asarray(points_odom, dtype=np.float64).reshape(-1, 2)
+        free, decided = np.zeros(len(pts), dtype=bool), np.zeros(len(pts), dtype=bool)
+        for T_odom_lidar, table in zip(reversed(self._poses), reversed(self._ranges), strict=True):
+            d = se2.transform_points(se2.inverse(T_odom_lidar), pts[~decided])
+            r = np.hypot(d[:, 0], d[:, 1])
+            # the bearings of the disk around each point: at least the bin's neighbours, at most all round
+            half = np.arcsin(np.minimum(self.clearance_m / np.maximum(r, 1e-9), 1.0))
+            width = np.maximum(np.ceil(half / self.bin_rad).astype(np.int64), 1)
+            width[r <= self.clearance_m] = self._bins
+            width = np.minimum(width, (self._bins - 1) // 2)
+            centre = self._bin(np.arctan2(d[:, 1], d[:, 0])) + self._bins
+            seen = _range_min(table, centre - width, centre + width)
+            new = np.isfinite(seen)
+            rows = np.flatnonzero(~decided)[new]
+            free[rows] = r[new] + self.clearance_m < seen[new]
+            decided[rows] = True
+            if decided.all():
+                break
+        return free
+
+    def _bin(self, bearing_rad: np.ndarray) -> np.ndarray:
+        return (np.floor((bearing_rad + math.pi) / self.bin_rad).astype(np.int64)) % self._bins
+
+
+def _range_min_table(values: np.ndarray) -> list[np.ndarray]:
+    """Sparse table for range minima: level j holds the minima of the windows of 2**j values."""
+    table = [values]
+    while 2 ** len(table) <= len(values):
+        half = 2 ** (len(table) - 1)
+        table.append(np.minimum(table[-1][:-half], table[-1][half:]))
+    return table
+
+
+def _range_min(table: list[np.ndarray], lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(Q,) the minima of the values ``lo[q]..hi[q]`` (inclusive) of a :func:`_range_min_table`."""
+    if len(lo) == 0:
+        return np.zeros(0)
+    level = np.floor(np.log2(hi - lo + 1)).astype(np.int64)
+    out = np.empty(len(lo))
+    for j in np.unique(level):
+        rows = level == j
+        out[rows] = np.minimum(table[j][lo[rows]], table[j][hi[rows] - 2**j + 1])
+    return out

@@ -44,13 +44,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from shapely.geometry import MultiPoint
 
 from simnav.geometry import se2
 from simnav.navigation.bands import Band, grow, sort_into_bands_flat
 from simnav.navigation.binning import effective_obstacle_distance, merge_bands, points_near
 from simnav.navigation.collision_grid import points_in_polygon
 from simnav.navigation.holonomic import METHODS, HolonomicInput, NDConfig, index_to_alpha
-from simnav.navigation.memory import MemoryConfig, ShortTermMemory
+from simnav.navigation.memory import MemoryConfig, ScanHistory, ShortTermMemory
 from simnav.navigation.sensing import ViewSector
 
 STATES = ("idle", "navigating", "turning", "squeezing", "reached", "blocked", "recovering", "waiting", "yielding")
@@ -180,6 +181,16 @@ class NavigatorConfig:
             its footprint where it was: the space behind a robot with a forward-looking lidar is mostly unseen, and
             backing wherever no point was sensed ran it into the walls behind it (in the flat's 1 m hallway, 12 of
             17 contacts).
+        give_way_seen_free_s: with ``give_way_on_trail``, yielding also backs off its trail where a level 2D lidar
+            saw the space free within the last this many seconds, ``_SEEN_FREE_CLEARANCE_M`` (0.3 m) around every
+            point of the outline moved back that lies outside the outline now (:class:`simnav.navigation.memory.
+            ScanHistory`: the newest scan in each bearing decides; rays from the apex of the widest of the
+            navigator's view sectors, the lidar's): into open space, not into a doorway or the flat's 1 m hallway.
+            None (the default): only onto the trail. The robot turns in place at a doorway's approach waypoint to
+            face it, so its trail with that heading ends there, and the corridor behind it, seen as it came, was
+            left unused while the people in the doorway waited for room to come out. Off by default: with 20 s the
+            README's first command had no intervention (1 without), but the office's long-run share and the flat's
+            batches had more in all (see the README).
         give_way_turn_back: off its trail when yielding (it turned in place to face the doorway at the doorway's
             approach waypoint), first turn in place back to a heading it came there with, the doorway kept within
             60 degrees of the heading, then back along the trail; without it the robot stands where it turned.
@@ -251,6 +262,7 @@ class NavigatorConfig:
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
     give_way_on_trail: bool = True
+    give_way_seen_free_s: float | None = None
     give_way_turn_back: bool = False
     give_way_until_crossed: bool = False
     spin_limit_rad: float | None = None
@@ -278,6 +290,8 @@ class NavigatorConfig:
              "need squeeze_margin_m >= 0, squeeze_reach_m > 0 and squeeze_speed_m_s > 0"),
             *[(getattr(self, name) >= 0, f"{name} must be >= 0, got {getattr(self, name)}")
               for name in ("give_way_check_m", "give_way_distance_m", "give_way_speed_m_s", "give_way_clear_s")],
+            (self.give_way_seen_free_s is None or self.give_way_seen_free_s > 0,
+             f"give_way_seen_free_s must be None or > 0 s, got {self.give_way_seen_free_s}"),
             (self.spin_limit_rad is None or self.spin_limit_rad > 0,
              f"spin_limit_rad must be None or > 0 rad, got {self.spin_limit_rad}"),
             (0 <= self.turn_in_place_stop_rad < self.turn_in_place_start_rad <= math.pi,
@@ -393,6 +407,13 @@ class ReactiveNavigator3D:
         self._squeeze_radii_m = circumradii_m + min(cfg.squeeze_margin_m, cfg.footprint_margin_m)
         self._robot_radius_m = max(float(np.max(np.hypot(b.polygon[:, 0], b.polygon[:, 1]))) for b in self.bands)
         self.view = None if view is None else tuple(view)
+        self._scans = (ScanHistory(_scan_origin_xy(self.view), cfg.give_way_seen_free_s,
+                                   clearance_m=_SEEN_FREE_CLEARANCE_M)
+                       if cfg.give_way and cfg.give_way_on_trail and cfg.give_way_seen_free_s is not None else None)
+        hull = MultiPoint(self._outline_xy.tolist()).convex_hull.exterior
+        self._hull_xy = np.asarray(hull.coords)[:-1]  # (H, 2) the robot's outline, base frame
+        self._hull_samples_xy = np.array([hull.interpolate(s).coords[0]  # every 4 cm along it
+                                          for s in np.linspace(0.0, hull.length, int(hull.length / 0.04) + 1)])
         self._view_limits = ([_view_limits(space, self.view, self.bands) for space in self._spaces]
                              if self.view is not None and cfg.limit_to_view else None)
         self.reset()
@@ -428,6 +449,8 @@ class ReactiveNavigator3D:
             method.reset()
         if self._memory is not None:
             self._memory.reset()
+        if getattr(self, "_scans", None) is not None:
+            self._scans.reset()
 
     def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
                       allowed_distance_m: np.ndarray | None = None, headings_rad: np.ndarray | None = None,
@@ -514,6 +537,8 @@ class ReactiveNavigator3D:
         scan_xy = scan_ptr = None
         if scan_points_base is not None and len(scan_points_base):
             scan_xy, scan_ptr = sort_into_bands_flat(scan_points_base, self.bands, max_xy_m=1.1 * cfg.ref_distance_m)
+            if self._scans is not None:
+                self._scans.add(stamp_s, T_odom_base, scan_xy)
         if self._memory is not None:
             virtual_xy, virtual_ptr = self._memory.update_flat(stamp_s, T_odom_base, xy, ptr, scan_xy, scan_ptr)
         if scan_xy is not None:
@@ -753,7 +778,8 @@ class ReactiveNavigator3D:
         if float(spot_base[0]) <= 0.0 or self._doorway_distance_m(T_odom_base, doorway) >= cfg.give_way_distance_m:
             return self._output(0.0, 0.0, dt, t0, "yielding", target_index)
         # Back straight while the space behind is free (and on the trail)
-        if self._behind_is_free(band_xy) and (not cfg.give_way_on_trail or self._behind_is_trail(T_odom_base, True)):
+        if self._behind_is_free(band_xy) and (not cfg.give_way_on_trail or self._behind_is_trail(T_odom_base, True)
+                                              or self._behind_seen_free(T_odom_base)):
             return self._output(-cfg.give_way_speed_m_s, 0.0, dt, t0, "yielding", target_index)
         # Off the trail: turn back towards a heading the robot came here with
         if cfg.give_way_on_trail and cfg.give_way_turn_back and _circles_free(xy, ptr, self._turn_radii_m):
@@ -1083,6 +1109,15 @@ class ReactiveNavigator3D:
                 return False
         return True
 
+    def _behind_seen_free(self, T_odom_base: np.ndarray) -> bool:
+        """Whether the robot's outline moved straight back by ``recovery_clearance_m``, where it lies outside the
+        outline now, lies where the lidar saw free space (``give_way_seen_free_s``)."""
+        if self._scans is None or len(self._scans) == 0:
+            return False
+        back = self._hull_samples_xy - (self.config.recovery_clearance_m, 0.0)
+        back = back[~points_in_polygon(back, self._hull_xy)]
+        return bool(np.all(self._scans.seen_free(se2.transform_points(T_odom_base, back))))
+
     def _remember_pose(self, stamp_s: float, T_odom_base: np.ndarray) -> None:
         """Keep the poses of the last ``recovery_trail_s`` seconds, one per 2 cm or 3 degrees of motion."""
         x, y = float(T_odom_base[0, 2]), float(T_odom_base[1, 2])
@@ -1175,6 +1210,15 @@ def _view_limits(space, view: Sequence[ViewSector], bands: Sequence[Band]) -> np
     return out
 
 
+def _scan_origin_xy(view: Sequence[ViewSector] | None) -> tuple[float, float]:
+    """Where a level lidar's rays start in the base frame: the apex of the widest view sector (m), else the base
+    origin."""
+    if not view:
+        return (0.0, 0.0)
+    widest = max(view, key=lambda sector: sector.half_angle_rad)
+    return (widest.x_m, widest.y_m)
+
+
 def _circles_free(xy: np.ndarray, ptr: np.ndarray, radii_m: np.ndarray) -> bool:
     """Whether no obstacle point of any band lies within that band's circle (radius ``radii_m[b]``) around the base
     origin: the robot can turn in place."""
@@ -1196,4 +1240,5 @@ _DOORWAY_RUN = 3  # flagged waypoints this many before the held one belong to th
 _TRAIL_STEP_M = 0.02
 _TRAIL_STEP_RAD = math.radians(3)
 _DOORWAY_IN_VIEW_RAD = math.radians(60)  # yielding turns back onto the trail only while the doorway stays this close
+_SEEN_FREE_CLEARANCE_M = 0.3  # yielding backs off its trail only where it keeps this far from what the lidar saw
 _HEADING_GAIN_1_S = 2.0  # yaw rate per radian left to turn when turning to a heading, 1/s

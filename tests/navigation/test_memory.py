@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pytest
 
 from simnav.geometry import se2
-from simnav.navigation.memory import MemoryConfig, ShortTermMemory
+from simnav.navigation.memory import MemoryConfig, ScanHistory, ShortTermMemory
 
 
 def test_an_obstacle_seen_twice_is_remembered_after_it_leaves_the_view_then_fades() -> None:
@@ -164,3 +167,84 @@ def test_the_kernels_view_test_agrees_with_the_view_sectors() -> None:
     expected = sectors[0].contains(xy) | sectors[1].contains(xy)
     assert 0 < expected.sum() < len(xy)
     assert [_in_view(view, x, y) for x, y in xy] == expected.tolist()
+
+
+def _scan(T_odom_lidar: np.ndarray, walls_odom: np.ndarray, fov_rad: float = math.radians(240)) -> np.ndarray:
+    """(S, 2) the wall points within the field of view, in the frame of a lidar at the base origin, m."""
+    local = se2.transform_points(se2.inverse(T_odom_lidar), walls_odom)
+    return local[np.abs(np.arctan2(local[:, 1], local[:, 0])) <= fov_rad / 2]
+
+
+def test_space_a_scan_saw_free_stays_free_after_the_robot_turned_away() -> None:
+    # a wall along x = 2 seen from the origin facing +x; then the robot turns to face -x (the wall behind it)
+    wall = np.column_stack([np.full(81, 2.0), np.linspace(-2.0, 2.0, 81)])
+    history = ScanHistory(keep_s=20.0)
+    history.add(0.0, se2.from_xy_yaw(0.0, 0.0, 0.0), _scan(se2.from_xy_yaw(0.0, 0.0, 0.0), wall))
+    turned = se2.from_xy_yaw(0.0, 0.0, math.pi)
+    history.add(1.0, turned, _scan(turned, wall))
+    assert len(history) == 2
+    before, at, past, aside = [1.5, 0.3], [1.95, 0.0], [2.5, 0.0], [-1.5, 0.0]
+    # before the wall (by more than clearance_m): free; on it, past it, or where no scan had a return: not
+    np.testing.assert_array_equal(history.seen_free(np.array([before, at, past, aside])),
+                                  [True, False, False, False])
+
+
+def test_the_newest_scan_in_a_bearing_decides() -> None:
+    wall = np.column_stack([np.full(81, 2.0), np.linspace(-2.0, 2.0, 81)])
+    person = np.array([[1.0, 0.0], [1.0, 0.05], [1.0, -0.05]])
+    history, T = ScanHistory(step_m=0.0, step_rad=0.0), se2.from_xy_yaw(0.0, 0.0, 0.0)
+    history.add(0.0, T, _scan(T, wall))
+    history.add(0.5, T, _scan(T, np.vstack([wall, person])))  # someone walked in at 1 m
+    assert not history.seen_free(np.array([[1.5, 0.0]]))[0]
+    history.add(1.0, T, _scan(T, wall))  # and left
+    assert history.seen_free(np.array([[1.5, 0.0]]))[0]
+
+
+def test_scans_are_kept_only_apart_in_pose_and_for_keep_s() -> None:
+    wall = np.column_stack([np.full(81, 2.0), np.linspace(-2.0, 2.0, 81)])
+    history = ScanHistory(keep_s=5.0, step_m=0.05, step_rad=math.radians(5.0))
+    for k in range(10):  # 4 mm apart, 3.6 cm in all: only the first is kept
+        T = se2.from_xy_yaw(0.004 * k, 0.0, 0.0)
+        history.add(0.1 * k, T, _scan(T, wall))
+    assert len(history) == 1
+    T = se2.from_xy_yaw(0.2, 0.0, 0.0)
+    history.add(1.0, T, _scan(T, wall))
+    assert len(history) == 2
+    T = se2.from_xy_yaw(0.4, 0.0, 0.0)
+    history.add(5.5, T, _scan(T, wall))  # the first, 5.5 s old, is dropped
+    assert len(history) == 2
+    history.reset()
+    assert len(history) == 0 and not history.seen_free(np.array([[1.0, 0.0]]))[0]
+
+
+def test_the_lidar_origin_sets_the_bearings() -> None:
+    # a post at (1.0, 0.3) (base frame) before a wall along x = 2: (1.5, 0.6) lies right behind the post as seen
+    # from a lidar 0.5 m ahead of the base origin, but beside it as seen from the base origin
+    scan = np.vstack([[[1.0, 0.3]], np.column_stack([np.full(81, 2.0), np.linspace(-2.0, 2.0, 81)])])
+    T, behind, before_wall = se2.from_xy_yaw(0.0, 0.0, 0.0), [1.5, 0.6], [1.5, -0.3]
+    for origin, free in (((0.5, 0.0), [False, True]), ((0.0, 0.0), [True, True])):
+        history = ScanHistory(origin_xy=origin)
+        history.add(0.0, T, scan)
+        np.testing.assert_array_equal(history.seen_free(np.array([behind, before_wall])), free)
+    with pytest.raises(ValueError, match="ScanHistory"):
+        ScanHistory(keep_s=0.0)
+
+
+def test_a_point_the_rays_passed_close_to_a_scan_point_is_not_free() -> None:
+    # the rays towards (1.05, 0.2) reach the wall along x = 2, but pass 0.11 m from a post at (1.0, 0.3): free
+    # only for a disk of less than that around the point
+    scan = np.vstack([[[1.0, 0.3]], np.column_stack([np.full(81, 2.0), np.linspace(-2.0, 2.0, 81)])])
+    T, beside_post = se2.from_xy_yaw(0.0, 0.0, 0.0), np.array([[1.05, 0.2]])
+    for clearance_m, free in ((0.01, True), (0.15, False)):
+        history = ScanHistory(clearance_m=clearance_m)
+        history.add(0.0, T, scan)
+        assert history.seen_free(beside_post)[0] is np.bool_(free)
+
+
+def test_bearings_wrap_around_behind_the_lidar() -> None:
+    # a 360 degree scan of a round room of radius 2 m: right behind the lidar, either side of the bearing pi
+    a = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    history, T = ScanHistory(clearance_m=0.2), se2.from_xy_yaw(0.0, 0.0, 0.0)
+    history.add(0.0, T, 2.0 * np.column_stack([np.cos(a), np.sin(a)]))
+    points = np.array([[-1.5, 0.01], [-1.5, -0.01], [-1.9, 0.0], [-1.9, 0.05], [0.1, 0.0]])
+    np.testing.assert_array_equal(history.seen_free(points), [True, True, False, False, True])

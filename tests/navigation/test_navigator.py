@@ -482,12 +482,16 @@ def test_yielding_backs_only_where_the_robot_drove(cache_dir) -> None:
     assert distances[-1] >= nav.config.give_way_distance_m - 0.02
 
 
-def _lined_up_at_a_doorway(nav: ReactiveNavigator3D):
+def _lined_up_at_a_doorway(nav: ReactiveNavigator3D, lidar: bool = False):
     """The robot drives north-east (45 degrees) from (0.8, -0.7) to the approach waypoint (2, 0.5) of a doorway at
     (2, 1.1), turns in place there to face it, and then someone steps into the doorway, at (2, 1.3), for 25 s.
+    With ``lidar``, walls also close the corridor 2.7 m south of the doorway's wall and 2.5 m east of it, and the
+    points within 120 degrees of the heading come as a level lidar's scan points (rays from the base origin).
     Returns the distances to the doorway, the yaws (rad) and the states while they stand there, and the last
     command."""
     walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
+    if lidar:
+        walls = np.vstack([walls, wall(-3.0, -1.6, 4.5, -1.6), wall(4.5, -1.6, 4.5, 1.1)])
     nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.5]]), allow_skip=np.array([False, False, True]),
                       allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
                       give_way=np.array([False, True, False]))
@@ -499,7 +503,11 @@ def _lined_up_at_a_doorway(nav: ReactiveNavigator3D):
         there = since is not None and k * dt < since + 25.0
         world = np.vstack([walls, _person(2.0, 1.3)]) if there else walls
         pts = np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]), world[:, 2]])
-        cmd = nav.step(k * dt, T, pts)
+        if lidar:
+            ahead = np.abs(np.arctan2(pts[:, 1], pts[:, 0])) <= math.radians(120)
+            cmd = nav.step(k * dt, T, np.zeros((0, 3)), pts[ahead])
+        else:
+            cmd = nav.step(k * dt, T, pts)
         if there:
             distances.append(float(np.hypot(x - 2.0, y - 1.1)))
             yaws.append(yaw)
@@ -512,7 +520,7 @@ def _lined_up_at_a_doorway(nav: ReactiveNavigator3D):
 
 def test_yielding_after_turning_to_face_the_doorway_can_turn_back_onto_the_trail(cache_dir) -> None:
     # lined up facing the doorway, the robot's trail comes in at 45 degrees: backing straight would leave it, so
-    # by default it yields where it stands
+    # without a lidar's scans of the space behind it yields where it stands
     distances, yaws, states, cmd = _lined_up_at_a_doorway(make_nav(cache_dir))
     assert cmd.state == "reached" and "yielding" in states
     assert np.ptp(distances) < 0.05 and distances[-1] < 0.7  # measured: 0.66-0.67 m
@@ -524,6 +532,22 @@ def test_yielding_after_turning_to_face_the_doorway_can_turn_back_onto_the_trail
     assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.51 m
     assert abs(yaws[-1] - np.pi / 4) < math.radians(25)  # facing about north-east again
     assert "turning" not in states and distances.min() > 0.6  # never on towards the person; measured: 0.66 m
+
+
+def test_yielding_after_turning_to_face_the_doorway_backs_where_the_lidar_saw_free_space(cache_dir) -> None:
+    # the corridor behind the lined-up robot was in the lidar's view as it came: with give_way_seen_free_s it backs
+    # straight, facing the doorway, to give_way_distance_m
+    nav = make_nav(cache_dir, give_way_seen_free_s=20.0)
+    distances, yaws, states, cmd = _lined_up_at_a_doorway(nav, lidar=True)
+    assert cmd.state == "reached" and "yielding" in states and "turning" not in states
+    assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.50 m
+    assert abs(se2.wrap_angle(yaws[-1] - np.pi / 2)) < math.radians(10)  # still facing the doorway
+    # only onto its trail (give_way_seen_free_s=None, the default): it stands where it turned
+    distances, yaws, states, cmd = _lined_up_at_a_doorway(make_nav(cache_dir), lidar=True)
+    assert cmd.state == "reached" and "yielding" in states
+    assert np.ptp(distances) < 0.05 and distances[-1] < 0.7  # measured: 0.66-0.67 m
+    with pytest.raises(ValueError, match="give_way_seen_free_s"):
+        NavigatorConfig(give_way_seen_free_s=0.0)
 
 
 def test_a_doorway_someone_stands_in_is_waited_for_from_where_the_robot_sees_it(cache_dir) -> None:
