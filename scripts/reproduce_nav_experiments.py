@@ -32,7 +32,8 @@ sensing, pose source (ground truth) and contact bookkeeping are the runner's own
 
     python scripts/reproduce_nav_experiments.py [--runs 20] [--seed 0] [--timeout 90] [--variants ...]
         [--desk-visits 14] [--only door|desks|none] [--long KM [--long-chunk-km 0.5] [--long-nav-set KEY=VALUE]
-        [--flat-nav-set KEY=VALUE] [--long-worlds office,flat]] [--jobs N] [--out DIR] [--verbose]
+        [--flat-nav-set KEY=VALUE] [--long-replan-after S] [--long-worlds office,flat]] [--jobs N] [--out DIR]
+        [--verbose]
 
 With ``--out DIR``: ``DIR/nav_experiments.md`` (every table, per-run and per-visit rows included),
 ``DIR/contour_door*_<nav>_<config>.png`` (every run's path), ``DIR/desks_<nav>.png`` and ``DIR/long_<world>/seed-<N>/``
@@ -463,10 +464,12 @@ class LongJob:
     seed: int
     out_dir: Path | None = None
     navigator: tuple[tuple[str, object], ...] = ()  # navigator options (``MissionSettings.navigator``), sorted
+    replan_after_s: float | None = None  # ``MissionSettings.replan_after_s``
 
 
 def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out: Path | None,
-              navigator: dict[str, dict] | None = None, worlds: Sequence[str] = ("office", "flat")) -> list[LongJob]:
+              navigator: dict[str, dict] | None = None, worlds: Sequence[str] = ("office", "flat"),
+              replan_after_s: float | None = None) -> list[LongJob]:
     """KM km split between the office and the flat as Tables 6.1 : 6.2, each share in continuous missions of at most
     ``chunk_km`` km on consecutive seeds; the office's first. ``navigator`` maps a world to its navigator options;
     ``worlds`` keeps only those worlds' jobs (the same jobs as in the whole run)."""
@@ -477,7 +480,8 @@ def long_jobs(km: float, people: dict[str, int], seed: int, chunk_km: float, out
         n = max(1, math.ceil(share / chunk_km - 1e-9))
         options = tuple(sorted((navigator or {}).get(name, {}).items()))
         jobs += [LongJob(name, share / n, people[name], seed + k,
-                         out / f"long_{name}" / f"seed-{seed + k}" if out is not None else None, options)
+                         out / f"long_{name}" / f"seed-{seed + k}" if out is not None else None, options,
+                         replan_after_s)
                  for k in range(n)]
     return jobs
 
@@ -496,7 +500,7 @@ def run_long(job: LongJob) -> dict:
     if job.world == "flat":
         robot = with_max_speed(robot, FLAT_SPEED_M_S)
     settings = MissionSettings(targets=100000, seed=job.seed, sim=SimConfig(pedestrians=job.people),
-                               navigator=dict(job.navigator))
+                               navigator=dict(job.navigator), replan_after_s=job.replan_after_s)
     runner = DistanceRunner(world, mission_robot(robot, settings), settings, job.out_dir, distance_m=job.km * 1000.0)
     try:
         report = runner.run(None)
@@ -520,7 +524,9 @@ def _finished_long(job: LongJob) -> dict | None:
 
 def _job_stamp(job: LongJob) -> str:
     """What a long mission's folder records of the code and the navigator options that ran it (``code.txt``)."""
-    return code_fingerprint() + "\n" + (json.dumps(dict(job.navigator), sort_keys=True) + "\n" if job.navigator else "")
+    replan = f"replan_after_s={job.replan_after_s}\n" if job.replan_after_s is not None else ""
+    options = json.dumps(dict(job.navigator), sort_keys=True) + "\n" if job.navigator else ""
+    return code_fingerprint() + "\n" + options + replan
 
 
 def code_fingerprint() -> str:
@@ -770,6 +776,9 @@ def main() -> None:
     parser.add_argument("--flat-nav-set", action="append", default=[], metavar="KEY=VALUE",
                         help="a navigator option for the flat's long missions only, after --long-nav-set, e.g. "
                              "grid_resolution_m=0.02; repeatable")
+    parser.add_argument("--long-replan-after", type=float, default=None, metavar="S",
+                        help="re-plan a long mission's route once the waypoint aimed at has been behind the map's "
+                             "walls S seconds (as `simnav mission --replan-after`; default: never)")
     parser.add_argument("--long-worlds", default="office,flat", metavar="office,flat",
                         help="run only these worlds' share of the long missions (as in a whole run)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
@@ -845,7 +854,8 @@ def main() -> None:
         people = [int(n) for n in args.long_people.split(",")]
         people = dict(zip(("office", "flat"), people if len(people) == 2 else people * 2, strict=True))
         t0 = time.perf_counter()
-        jobs = long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator, long_worlds)
+        jobs = long_jobs(args.long, people, args.seed, args.long_chunk_km, out, navigator, long_worlds,
+                         args.long_replan_after or None)
         reports = run_jobs(run_long, jobs, args.jobs, "long missions")
         long = [long_table(reports), long_runs_table(reports)]
         for t in long if args.verbose else long[:1]:

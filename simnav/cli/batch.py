@@ -39,6 +39,9 @@ def batch(
     keep_right: Annotated[float | None, typer.Option(help="Keep this far right of the route where it goes on "
                                                           "straight, m (missions; default 0.4).", min=0, max=2)
                           ] = None,
+    replan_after: Annotated[float | None, typer.Option(help="Plan the route again once the waypoint aimed at has "
+                                                            "been behind the map's walls this long, s (missions; "
+                                                            "default: never; e.g. 3).", min=0)] = None,
     env: Annotated[str, typer.Option(help="Gymnasium id of the env (rollouts).")] = "simnav/OfficeNav-v0",
     policy: Annotated[str, typer.Option(help="Policy of the rollouts: ptg (the 3D-PTG navigator) or random.")
                       ] = "ptg",
@@ -59,11 +62,12 @@ def batch(
     (mission-<seed>/) into --out. The same seeds give the same rows locally and on Ray.
     """
     _batch(missions, workers, ray_address, task, world, robot, targets, duration, agents, pose_source, nav, env,
-           policy, seed, out, robot_set, world_set, sim_set, nav_set, keep_right)
+           policy, seed, out, robot_set, world_set, sim_set, nav_set, keep_right, replan_after)
 
 
 def _batch(missions, workers, ray_address, task, world, robot, targets, duration, agents, pose_source, nav, env,
-           policy, seed, out, robot_set, world_set, sim_set, nav_set=None, keep_right=None) -> None:
+           policy, seed, out, robot_set, world_set, sim_set, nav_set=None, keep_right=None,
+           replan_after=None) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from simnav.batch import run_batch
@@ -72,7 +76,7 @@ def _batch(missions, workers, ray_address, task, world, robot, targets, duration
         raise typer.BadParameter(f"--task must be mission or rollout, got '{task}'")
     out_dir = out or _run_dir("batch")
     jobs = (_mission_jobs(missions, world, robot, targets, duration, agents, pose_source, nav, seed, out_dir,
-                          robot_set, world_set, sim_set, nav_set, keep_right) if task == "mission"
+                          robot_set, world_set, sim_set, nav_set, keep_right, replan_after) if task == "mission"
             else _rollout_jobs(missions, env, policy, seed))
     where = f"on Ray ({ray_address})" if ray_address else f"on {workers or 'all'} local workers"
     with Progress(TextColumn(f"[bold]batch[/] {len(jobs)} {task}s {where}"), BarColumn(), MofNCompleteColumn(),
@@ -91,7 +95,7 @@ def _batch(missions, workers, ray_address, task, world, robot, targets, duration
 
 
 def _mission_jobs(count, world, robot, targets, duration, agents, pose_source, nav, seed, out_dir, robot_set,
-                  world_set, sim_set, nav_set=None, keep_right=None):
+                  world_set, sim_set, nav_set=None, keep_right=None, replan_after=None):
     """Validated jobs: every user error (unknown world, robot or pose source, bad field) before any worker starts."""
     from simnav.batch import mission_jobs
     from simnav.config import apply_overrides, validate
@@ -111,7 +115,9 @@ def _mission_jobs(count, world, robot, targets, duration, agents, pose_source, n
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
                                           "nav": nav, "sim": sim_cfg.model_dump(),
                                           "navigator": apply_overrides({}, nav_set, "--nav-set"),
-                                          **({} if keep_right is None else {"keep_right_m": keep_right})},
+                                          **({} if keep_right is None else {"keep_right_m": keep_right}),
+                                          **({} if replan_after is None else
+                                             {"replan_after_s": replan_after or None})},
                         "simnav batch")
     return mission_jobs(count, world, robot, settings, out_dir=out_dir, world_set=tuple(world_set or ()),
                         robot_set=tuple(robot_set or ()))

@@ -33,6 +33,9 @@ def mission(
     keep_right: Annotated[float | None, typer.Option(help="Keep this far right of the route where it goes on "
                                                           "straight, m (default 0.4; 0: on the roadmap's line).",
                                                      min=0, max=2)] = None,
+    replan_after: Annotated[float | None, typer.Option(help="Plan the route again once the waypoint aimed at has "
+                                                            "been behind the map's walls this long, s (default: "
+                                                            "never; e.g. 3).", min=0)] = None,
     viz: Annotated[bool, typer.Option("--viz", help="Stream the mission to meshcat (prints the URL to open).")
                    ] = False,
     viz_url: Annotated[str | None, typer.Option(help="Join a running meshcat server at this ZMQ URL instead of "
@@ -78,7 +81,9 @@ def mission(
                                           "duration_s": duration, "seed": seed, "pose_source": pose_source,
                                           "nav": nav, "memory": not no_memory, "sim": sim_cfg.model_dump(),
                                           "navigator": apply_overrides({}, nav_set, "--nav-set"),
-                                          **({} if keep_right is None else {"keep_right_m": keep_right})},
+                                          **({} if keep_right is None else {"keep_right_m": keep_right}),
+                                          **({} if replan_after is None else
+                                             {"replan_after_s": replan_after or None})},
                         "simnav mission")
     out_dir = out or _run_dir("mission")
     total = float(settings.targets) if settings.duration_s is None else settings.duration_s
@@ -135,7 +140,8 @@ def _print_report(report, out_dir: Path) -> None:
         ("duration", f"{report.duration_s:.1f} s sim ({report.real_time_factor:.1f}x real time)"),
         ("speed avg / max", f"{report.avg_speed_m_s:.2f} / {report.max_speed_m_s:.2f} m/s"),
         ("minor incidents", ", ".join(f"{k} {v}" for k, v in report.minor_incidents.items())),
-        ("interventions", str(report.interventions)),
+        ("interventions", f"{report.interventions}"
+                          + (f" ({report.replans} route re-plans)" if report.replans else "")),
         ("min clearance (static)", f"{report.min_clearance_m:.3f} m"),
         ("path length ratio", f"{report.path_length_ratio:.2f}"),
         ("navigator step median / p95", f"{report.navigator_step_ms['median']:.2f} / "

@@ -84,11 +84,17 @@ STRAIGHT_NODE_RAD = math.radians(30.0)
 """Only nodes where the route turns by less than this are moved to the right of it, rad."""
 
 
+
 NavigatorValue = bool | int | float | str | None  # a scalar navigator option of ``--nav-set``
 
 
 class MissionSettings(FrozenModel):
-    """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator."""
+    """What to run: how many targets (or how long), which seed, pose source, navigator model and simulator.
+
+    ``replan_after_s``: the route to the target is planned again from where the robot stands once the waypoint the
+    navigator aims at has been out of sight behind the map's walls this long, s (None, the default: never; see
+    ``_MissionRunner._replan_if_off_route`` and the README: 3 s did not lower the office's interventions).
+    """
 
     targets: Annotated[int, Field(ge=1, le=100000)] | None = 2
     duration_s: Annotated[float, Field(gt=0, le=10 * 86400)] | None = None
@@ -99,6 +105,7 @@ class MissionSettings(FrozenModel):
     max_target_time_s: Annotated[float, Field(gt=0)] = 300.0
     memory: bool = True
     keep_right_m: Annotated[float, Field(ge=0, le=2)] = 0.4
+    replan_after_s: Annotated[float, Field(gt=0)] | None = None
     navigator: dict[str, NavigatorValue | dict[str, NavigatorValue]] = {}
     sim: SimConfig = SimConfig()
 
@@ -215,6 +222,7 @@ class MissionReport:
     minor_incidents: dict = field(default_factory=lambda: {"static": 0, "door": 0, "people": 0, "robots": 0,
                                                            "total": 0, "robot_stopped": 0})
     interventions: int = 0
+    replans: int = 0
     min_clearance_m: float = float("inf")
     path_length_ratio: float = float("nan")
     navigator_step_ms: dict = field(default_factory=lambda: {"median": 0.0, "p95": 0.0})
@@ -320,6 +328,8 @@ class _MissionRunner:
             lambda xy: np.minimum(clearance_m(self.sim.world, xy, 0.0, z_max_m),
                                   door_swing_distance_m(self.sim.world, xy)) - turn_m)
         self._static = [obstacle_union(self.sim.world, p.z_min_m, p.z_max_m) for p in robot.prisms]
+        self._walls = wall_segments(self.sim.world)
+        self._out_of_sight_since_s: float | None = None
         self._gt: list[tuple[float, np.ndarray]] = []
         self._step_times: list[float] = []
         self._nav_log: list[tuple] = []  # one row per control step (see NAV_LOG_COLUMNS)
@@ -371,6 +381,8 @@ class _MissionRunner:
             elif self.sim.time_s - self._target_start_s > s.max_target_time_s:
                 self._close_target(row, reached=False)
                 route = self._new_target() if not self._finished() else route
+            else:
+                route = self._replan_if_off_route(cmd, route)
             if progress is not None:
                 progress(MissionProgress(self.sim.time_s, self._targets_done(), self.report.targets_reached,
                                          self.report.distance_m))
@@ -438,13 +450,44 @@ class _MissionRunner:
             return self.sim.roadmap.random_node(self.rng, exclude=start)
         return int(candidates[self.rng.integers(len(candidates))])
 
-    def _follow(self, route: list[int]) -> None:
+    def _follow(self, route: list[int], keep_stuck_timer: bool = False) -> None:
         """Hand a roadmap route to the navigator (:func:`route_waypoints`)."""
         xy, skip, near, heading, doorway = route_waypoints(self.sim.roadmap.nodes_xy, route, self._narrow,
                                                            self.nav.config.waypoint_allowed_distance_m,
                                                            self._turnable, self._keep_right_m, self._axis_approach)
         self._route_xy = xy
-        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading, give_way=doorway)
+        self.nav.set_waypoints(xy, allow_skip=skip, allowed_distance_m=near, headings_rad=heading, give_way=doorway,
+                               keep_stuck_timer=keep_stuck_timer)
+        self._out_of_sight_since_s = None
+
+    def _replan_if_off_route(self, cmd, route: list[int]) -> list[int]:
+        """Off the route: the waypoint the navigator aims at has been out of sight behind the map's walls for
+        ``MissionSettings.replan_after_s`` (people pushed the robot through a doorway the route passes by, and
+        inside the room it followed the wall towards a waypoint in the corridor beyond it, turning on the spot in
+        the corner): the route to the same goal is planned again from the nearest roadmap node in sight of the
+        estimated pose. The navigator's time without progress runs on (``keep_stuck_timer``)."""
+        if self.settings.replan_after_s is None:
+            return route
+        xy = self._last_step[0][:2, 2]
+        aimed = self._route_xy[cmd.target_index] if 0 <= cmd.target_index < len(self._route_xy) else xy
+        now = self.sim.time_s
+        if in_sight(xy, aimed[None], self._walls)[0]:
+            self._out_of_sight_since_s = None
+            return route
+        if self._out_of_sight_since_s is None:
+            self._out_of_sight_since_s = now
+        if now - self._out_of_sight_since_s < self.settings.replan_after_s:
+            return route
+        graph = self.sim.roadmap
+        order = np.argsort(np.linalg.norm(graph.nodes_xy - xy, axis=1))
+        seen = order[in_sight(xy, graph.nodes_xy[order], self._walls)]
+        new = graph.shortest_path(int(seen[0]), route[-1]) if len(seen) else []
+        self._out_of_sight_since_s = None
+        if not new:
+            return route
+        self.report.replans += 1
+        self._follow(new, keep_stuck_timer=True)
+        return new
 
     def _close_target(self, row, reached: bool) -> None:
         row.reached = reached
@@ -638,6 +681,27 @@ NAV_LOG_COLUMNS = ("time_s", "x_m", "y_m", "yaw_rad", "v_m_s", "w_rad_s", "state
                    "free_distance", "speed")
 """Columns of ``navigation.csv``: one row per control step; the true pose of the base in the world, the command and
 what the navigator decided (:class:`~simnav.navigation.navigator.NavCommand`)."""
+
+
+def wall_segments(world: WorldSpec) -> np.ndarray:
+    """(S, 2, 2) the centre lines of the world's walls, segment by segment, m."""
+    segs = [np.stack([a, b]) for wall in world.walls for a, b in zip(wall.points[:-1], wall.points[1:], strict=True)]
+    return np.array(segs, dtype=np.float64).reshape(-1, 2, 2)
+
+
+def in_sight(xy: np.ndarray, points_xy: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """(P,) whether the straight line from ``xy`` (2,) to each of the (P, 2) points crosses none of the (S, 2, 2)
+    segments (m; touching counts as crossing)."""
+    p = np.asarray(xy, dtype=np.float64)[None, None, :]
+    q = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)[:, None, :]
+    a, b = segments[None, :, 0, :], segments[None, :, 1, :]
+
+    def cross(o, u, v):
+        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0])
+
+    d1, d2 = cross(a, b, p), cross(a, b, q)
+    d3, d4 = cross(p, q, a), cross(p, q, b)
+    return ~np.any((d1 * d2 <= 0.0) & (d3 * d4 <= 0.0), axis=1)
 
 
 def _write_nav_log(path: Path, rows: list[tuple]) -> None:

@@ -186,11 +186,10 @@ class NavigatorConfig:
             point of the outline moved back that lies outside the outline now (:class:`simnav.navigation.memory.
             ScanHistory`: the newest scan in each bearing decides; rays from the apex of the widest of the
             navigator's view sectors, the lidar's): into open space, not into a doorway or the flat's 1 m hallway.
-            None (the default): only onto the trail. The robot turns in place at a doorway's approach waypoint to
-            face it, so its trail with that heading ends there, and the corridor behind it, seen as it came, was
-            left unused while the people in the doorway waited for room to come out. Off by default: with 20 s the
-            README's first command had no intervention (1 without), but the office's long-run share and the flat's
-            batches had more in all (see the README).
+            None: only onto the trail. The robot turns in place at a doorway's approach waypoint to face it, so its
+            trail with that heading ends there, and the corridor behind it, seen as it came, was left unused while
+            the people in the doorway waited for room to come out (the office's long-run share: 14 interventions
+            with it against 20 and one more without, see the README).
         give_way_turn_back: off its trail when yielding (it turned in place to face the doorway at the doorway's
             approach waypoint), first turn in place back to a heading it came there with, the doorway kept within
             60 degrees of the heading, then back along the trail; without it the robot stands where it turned.
@@ -262,7 +261,7 @@ class NavigatorConfig:
     give_way_speed_m_s: float = 0.12
     give_way_clear_s: float = 1.0
     give_way_on_trail: bool = True
-    give_way_seen_free_s: float | None = None
+    give_way_seen_free_s: float | None = 20.0
     give_way_turn_back: bool = False
     give_way_until_crossed: bool = False
     spin_limit_rad: float | None = None
@@ -434,6 +433,7 @@ class ReactiveNavigator3D:
         self._last_stamp_s: float | None = None
         self._best_distance = math.inf
         self._best_distance_stamp_s: float | None = None
+        self._stuck_since_kept_s: float | None = None  # set_waypoints(keep_stuck_timer=True): no progress since
         self._blocked_since_s: float | None = None
         self._progress_target = -1
         self._goal_blocked_steps = 0
@@ -454,7 +454,7 @@ class ReactiveNavigator3D:
 
     def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
                       allowed_distance_m: np.ndarray | None = None, headings_rad: np.ndarray | None = None,
-                      give_way: np.ndarray | None = None) -> None:
+                      give_way: np.ndarray | None = None, keep_stuck_timer: bool = False) -> None:
         """Follow waypoints in order without stopping; the last one is the goal.
 
         Args:
@@ -469,7 +469,11 @@ class ReactiveNavigator3D:
                 with a doorway before driving through it).
             give_way: (W,) waypoints to yield at while someone stands on them (doorways; default none; see
                 ``NavigatorConfig.give_way``).
+            keep_stuck_timer: the same goal on a new route (re-planned): the time without progress runs on from
+                the old route until the robot makes progress on the new one (else a robot re-planned every few
+                seconds would never count as stuck).
         """
+        kept_since_s = self._best_distance_stamp_s if keep_stuck_timer and len(self._waypoints) else None
         wp = np.asarray(waypoints_xy, dtype=np.float64).reshape(-1, 2)
         if len(wp) == 0 or not np.isfinite(wp).all():
             raise ValueError(f"waypoints must be a non-empty (W, 2) finite array, got shape {wp.shape}")
@@ -489,6 +493,7 @@ class ReactiveNavigator3D:
         self._headings, self._aligning, self._give_way = heading, False, yields
         self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
         self._best_distance, self._best_distance_stamp_s = math.inf, None
+        self._stuck_since_kept_s = kept_since_s
         self._blocked_since_s = self._goal_blocked_since_s = None
         self._spot_taken_steps, self._spot_taken_since = 0, (-1, math.nan)
         self._turning, self._turn_end = False, None
@@ -819,7 +824,10 @@ class ReactiveNavigator3D:
         if self._target > self._progress_target:  # not back to a skipped waypoint: that would reset the timer
             self._progress_target, self._best_distance_stamp_s = self._target, None
         d = float(np.linalg.norm(self._waypoints[self._progress_target] - T_odom_base[:2, 2]))
-        if self._best_distance_stamp_s is None or d < self._best_distance - self.config.stuck_progress_m:
+        if self._best_distance_stamp_s is None:  # a new waypoint (or route: the kept time without progress)
+            since_s = stamp_s if self._stuck_since_kept_s is None else self._stuck_since_kept_s
+            self._best_distance, self._best_distance_stamp_s, self._stuck_since_kept_s = d, since_s, None
+        elif d < self._best_distance - self.config.stuck_progress_m:
             self._best_distance, self._best_distance_stamp_s = d, stamp_s
 
     # ------------------------------------------------------------------------------------------ candidates

@@ -26,9 +26,9 @@ from simnav.world import load_world
 QUIET = ["--world", "polygonal", "--agents", "0", "--robots", "0", "--targets", "2", "--seed", "3"]
 REPORT_KEYS = {"simnav_version", "world", "robot", "seed", "nav", "pose_source", "people", "targets_requested",
                "targets_reached", "success_rate", "distance_m", "duration_s", "avg_speed_m_s", "max_speed_m_s",
-               "minor_incidents", "interventions", "min_clearance_m", "path_length_ratio", "navigator_step_ms",
-               "real_time_factor", "wall_time_s", "odometry", "targets", "incidents", "intervention_log",
-               "state_time_s"}
+               "minor_incidents", "interventions", "replans", "min_clearance_m", "path_length_ratio",
+               "navigator_step_ms", "real_time_factor", "wall_time_s", "odometry", "targets", "incidents",
+               "intervention_log", "state_time_s"}
 
 
 def simnav(*args: str) -> subprocess.CompletedProcess:
@@ -380,3 +380,48 @@ def test_settings_errors_name_the_field_once_without_pydantic_prefixes():
         validate(MissionSettings, {"targets": 1, "navigator": {"num_paths": [1]}}, "mission.yaml")
     assert str(bad.value) == ("mission.yaml: field 'navigator': num_paths: expected one value (true/false, a number, "
                               "a word or null), got [1]")
+
+
+def _lost_in_a_room(replan_after_s: float | None, seconds: float = 120.0):
+    """The office without people; the robot stands in the south room west of x = 10 m, at (8, -2) facing east, and
+    is handed a route along the corridor beyond the room's wall (from the corridor node nearest (7, 0) to the one
+    nearest (12, 0)). Returns the runner, the route's goal node and the last command."""
+    from simnav.mission.mission import _MissionRunner
+
+    settings = MissionSettings(targets=1, seed=3, replan_after_s=replan_after_s, sim={"pedestrians": 0, "wanderers": 0})
+    runner = _MissionRunner(load_world("office"), mission_robot(load_robot("giraff"), settings), settings, None)
+    graph = runner.sim.roadmap
+    route = graph.shortest_path(graph.nearest_node(np.array([7.0, 0.0])), graph.nearest_node(np.array([12.0, 0.0])))
+    runner.sim.teleport(8.0, -2.0, 0.0)
+    runner.pose.anchor(runner.sim.time_s, runner._true_pose())
+    runner._follow(route)
+    while runner.sim.time_s < seconds:
+        cmd = runner._control_step()
+        if cmd.state == "reached" or cmd.stuck:
+            break
+        route = runner._replan_if_off_route(cmd, route)
+    return runner, route[-1], cmd
+
+
+def test_a_robot_off_its_route_behind_a_wall_is_given_a_new_route():
+    # the route's waypoints lie in the corridor beyond the room's wall: the navigator alone follows the wall
+    # inside the room and is stuck
+    runner, goal, cmd = _lost_in_a_room(None)
+    assert cmd.stuck and runner.report.replans == 0
+    # re-planned from the nearest roadmap node in sight, it leaves the room through its doorway and gets there
+    runner, goal, cmd = _lost_in_a_room(3.0)
+    assert cmd.state == "reached" and runner.report.replans >= 1
+    assert np.linalg.norm(runner._true_pose()[:2, 2] - runner.sim.roadmap.nodes_xy[goal]) < 0.5
+
+
+def test_the_line_of_sight_test_crosses_segments_and_their_ends():
+    from simnav.mission.mission import in_sight, wall_segments
+
+    wall = np.array([[[0.0, -1.0], [0.0, 1.0]]])
+    points = np.array([[1.0, 0.0], [-0.5, 3.0], [1.0, 1.5], [1.0, 2.0], [1.0, 3.0]])
+    np.testing.assert_array_equal(in_sight(np.array([-1.0, 0.0]), points, wall), [False, True, False, False, True])
+    segments = wall_segments(load_world("office"))
+    assert segments.shape[1:] == (2, 2) and len(segments) > 10
+    # the corridor's south wall between the rooms hides the corridor from the room below it
+    assert not in_sight(np.array([8.0, -2.0]), np.array([[8.0, 0.0]]), segments)[0]
+    assert in_sight(np.array([8.0, -0.5]), np.array([[12.0, 0.0]]), segments)[0]

@@ -535,15 +535,15 @@ def test_yielding_after_turning_to_face_the_doorway_can_turn_back_onto_the_trail
 
 
 def test_yielding_after_turning_to_face_the_doorway_backs_where_the_lidar_saw_free_space(cache_dir) -> None:
-    # the corridor behind the lined-up robot was in the lidar's view as it came: with give_way_seen_free_s it backs
-    # straight, facing the doorway, to give_way_distance_m
-    nav = make_nav(cache_dir, give_way_seen_free_s=20.0)
+    # the corridor behind the lined-up robot was in the lidar's view as it came: it backs straight, facing the
+    # doorway, to give_way_distance_m (give_way_seen_free_s, 20 s by default)
+    nav = make_nav(cache_dir)
     distances, yaws, states, cmd = _lined_up_at_a_doorway(nav, lidar=True)
     assert cmd.state == "reached" and "yielding" in states and "turning" not in states
     assert distances[-1] >= nav.config.give_way_distance_m - 0.02  # measured: 1.50 m
     assert abs(se2.wrap_angle(yaws[-1] - np.pi / 2)) < math.radians(10)  # still facing the doorway
-    # only onto its trail (give_way_seen_free_s=None, the default): it stands where it turned
-    distances, yaws, states, cmd = _lined_up_at_a_doorway(make_nav(cache_dir), lidar=True)
+    # only onto its trail (give_way_seen_free_s=None): it stands where it turned
+    distances, yaws, states, cmd = _lined_up_at_a_doorway(make_nav(cache_dir, give_way_seen_free_s=None), lidar=True)
     assert cmd.state == "reached" and "yielding" in states
     assert np.ptp(distances) < 0.05 and distances[-1] < 0.7  # measured: 0.66-0.67 m
     with pytest.raises(ValueError, match="give_way_seen_free_s"):
@@ -884,3 +884,17 @@ def test_yielding_backs_onto_the_trail_only_with_the_footprint_where_it_was(cach
     nav._remember_pose(8.0, T)
     assert nav._behind_is_trail(T, footprint=True) is backs
     assert nav._behind_is_trail(T) is (abs(turned_deg) <= 20.0)
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_a_new_route_to_the_same_goal_can_keep_the_time_without_progress(cache_dir, keep: bool) -> None:
+    # the robot does not move (held in place): stuck after stuck_timeout_s; a new route 6 s in keeps the clock
+    # running with keep_stuck_timer, else it starts it again
+    nav = make_nav(cache_dir, stuck_timeout_s=10.0)
+    T, route = se2.from_xy_yaw(0.0, 0.0, 0.0), np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    nav.set_waypoints(route)
+    stuck = [nav.step(0.05 * k, T, np.zeros((0, 3))).stuck for k in range(120)]
+    nav.set_waypoints(route[1:], keep_stuck_timer=keep)
+    stuck += [nav.step(0.05 * k, T, np.zeros((0, 3))).stuck for k in range(120, 240)]
+    assert not any(stuck[:200])
+    assert any(stuck[200:]) is keep  # 10-12 s after the start
