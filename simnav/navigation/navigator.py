@@ -449,7 +449,7 @@ class ReactiveNavigator3D:
             method.reset()
         if self._memory is not None:
             self._memory.reset()
-        if getattr(self, "_scans", None) is not None:
+        if self._scans is not None:
             self._scans.reset()
 
     def set_waypoints(self, waypoints_xy: np.ndarray, allow_skip: np.ndarray | None = None,
