@@ -91,6 +91,12 @@ class NavigatorConfig:
         backward_priority: score factor of backward PTGs (they are a last resort).
         target_allowed_distance_m: the final target counts as reached within this distance, m.
         waypoint_allowed_distance_m: intermediate waypoints count as passed within this distance, m.
+        through_doorway_first: until the robot has crossed the doorway waypoint it passed last (flagged ``give_way``,
+            without a heading; crossed: past the line through it square to the route's leg), it aims at no waypoint
+            beyond the one after it (the exit waypoint straight on). A doorway counts as passed within its allowed
+            distance, often before the robot is through: without this, a robot 0.15 m short of a doorway's wall line
+            aimed at a corridor waypoint beyond, turned in place towards it, and drove into the room along the wall
+            (the office's long runs, see the README).
         waypoint_heading_tolerance_rad: a waypoint given a heading counts as passed only once the robot faces that
             heading within this; until then it turns in place there (when its turning circle is free), rad.
         taken_waypoint_pass_m: a waypoint given a heading whose spot is taken (the robot standing on it at that
@@ -223,6 +229,7 @@ class NavigatorConfig:
     backward_priority: float = 0.5
     target_allowed_distance_m: float = 0.3
     waypoint_allowed_distance_m: float = 1.0
+    through_doorway_first: bool = True
     waypoint_heading_tolerance_rad: float = math.radians(20.0)
     taken_waypoint_pass_m: float = 0.6
     taken_waypoint_wait_s: float = 0.0
@@ -670,9 +677,12 @@ class ReactiveNavigator3D:
         earlier (passed over for a later one that was reachable then, not driven past) is a candidate again while
         it lies ahead of the robot: when what made the later one reachable closes (someone steps into the way
         through a doorway), the robot aims at the waypoint in the doorway again instead of at a target beyond
-        the wall."""
+        the wall. Nothing beyond the current waypoint is a candidate while the robot is short of a doorway it
+        passed last (``through_doorway_first``)."""
         fixed = np.nonzero(~self._allow_skip[self._target:])[0]
         end = self._target + int(fixed[0]) if len(fixed) else len(self._waypoints) - 1
+        if self._in_doorway_passed(T_odom_base):
+            end = self._target
         ahead = np.arange(self._first_unpassed, end + 1)
         if len(ahead) <= 1 and self._first_unpassed == self._target:
             return self._target
@@ -689,6 +699,13 @@ class ReactiveNavigator3D:
         if reachable.any():
             self._target = int(ahead[np.nonzero(reachable)[0][-1]])
         return self._target
+
+    def _in_doorway_passed(self, T_odom_base: np.ndarray) -> bool:
+        """Whether the last waypoint passed is a doorway (flagged ``give_way``, without a heading) the robot has not
+        crossed yet (:meth:`_short_of`), with ``through_doorway_first``."""
+        k = self._first_unpassed - 1
+        return (self.config.through_doorway_first and k >= 0 and bool(self._give_way[k])
+                and not np.isfinite(self._headings[k]) and self._short_of(T_odom_base, k))
 
     def _goal_spot(self, T_odom_base: np.ndarray) -> np.ndarray:
         """(2,) the nearest place to stand on that reaches the goal: the goal pulled towards the robot by
