@@ -14,8 +14,8 @@ grid of views.
 
 A replay that leaves the recorded ``trajectory_gt.txt`` (the mission was run by other code) is drawn with a
 warning. With ``--intervention K`` (1-based, default 1) the views cover the ``--before`` seconds up to the K-th
-intervention of ``report.json``, one every ``--every`` seconds. The PNG goes to ``MISSION_DIR/snapshots-<K or times>.png``
-unless ``--out`` says otherwise.
+intervention of ``report.json``, one every ``--every`` seconds. The PNG goes to
+``MISSION_DIR/snapshots-<K or times>.png`` unless ``--out`` says otherwise.
 """
 
 from __future__ import annotations
