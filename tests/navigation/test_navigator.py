@@ -599,8 +599,8 @@ def test_a_skipped_waypoint_is_aimed_at_again_when_the_later_one_is_no_longer_re
 
 def test_short_of_a_doorway_passed_the_robot_aims_straight_through_it(cache_dir) -> None:
     # the doorway (2, 1.1) in the gap of a wall along y = 1.1 (passed within 0.3 m), its exit waypoint (2, 1.6)
-    # straight on, a waypoint (3.5, 1.8) beyond: 0.2 m short of the doorway the robot aims at the exit waypoint,
-    # past the wall's line it may cut to the one beyond
+    # straight on, a waypoint (3.5, 1.8) beyond: with through_doorway_first, 0.2 m short of the doorway the robot
+    # aims at the exit waypoint, past the wall's line it may cut to the one beyond
     walls = np.vstack([wall(-3.0, 1.1, 1.5, 1.1), wall(2.5, 1.1, 6.0, 1.1)])
 
     def target_at(y_m: float, **overrides) -> int:
@@ -613,9 +613,9 @@ def test_short_of_a_doorway_passed_the_robot_aims_straight_through_it(cache_dir)
         return nav.step(0.0, T, np.column_stack([se2.transform_points(se2.inverse(T), walls[:, :2]),
                                                  walls[:, 2]])).target_index
 
-    assert target_at(0.9) == 2
-    assert target_at(1.15) == 3
-    assert target_at(0.9, through_doorway_first=False) == 3  # from 0.2 m short
+    assert target_at(0.9, through_doorway_first=True) == 2
+    assert target_at(1.15, through_doorway_first=True) == 3
+    assert target_at(0.9) == 3  # by default the doorway counts as passed from 0.2 m short
 
 
 def test_a_waypoint_heading_is_given_up_without_room_to_turn(cache_dir) -> None:
