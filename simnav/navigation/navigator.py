@@ -94,7 +94,7 @@ class NavigatorConfig:
         through_doorway_first: until the robot has crossed the doorway waypoint it passed last (flagged ``give_way``,
             without a heading; crossed: past the line through it square to the route's leg), it aims at no waypoint
             beyond the one after it (the exit waypoint straight on). A doorway counts as passed within its allowed
-            distance, often before the robot is through: without this, a robot 0.15 m short of a doorway's wall line
+            distance, often before the robot is through: without this, a robot 0.16 m short of a doorway's wall line
             aimed at a corridor waypoint beyond, turned in place towards it, and drove into the room along the wall
             (the office's long runs). Off by default: over the office's long runs it did not lower the interventions
             (see the README).
