@@ -5,7 +5,8 @@ One step (§6.C.5, Fig. 6.8), given the obstacle points in the base frame and th
 1. sort the points into the robot's height bands and add the short-term memory's virtual obstacles;
 2. for every path family (PTG), the TP-NavLimits of each band from that band's collision grid, combined by the
    minimum over bands (eq. 6.4);
-3. the target (the furthest waypoint ahead that a PTG reports reachable) into each TP-space; the holonomic method
+3. the target (the furthest waypoint ahead that a PTG reports reachable, along a path that stays where a sensor
+   sees: ``skip_within_view``) into each TP-space; the holonomic method
    (ND or VFF) picks a direction and a speed per PTG, and the target's own path is a second candidate when it is
    free up to the target (ND's filters drop gaps narrower than ceil(1% N) paths, such as a doorway that only one
    path passes); a path at the seam of TP-space (|alpha| > 135 degrees: turning around) gives way to its mirror image
@@ -27,7 +28,8 @@ cells and margin keep 1.5-8.5 cm from the points: a 0.8 m doorway in front of th
 is squeezed through: the target's own path, checked exactly against the points up to a target 0.8 m ahead with a 2
 cm margin, is followed slowly when that finds it free (``squeeze``, near waypoints flagged ``give_way``). A waypoint
 to line up at (given a heading) whose spot is taken, an open door leaf or someone standing there, counts as reached
-once the robot is close: it lines up where it is. In front of a taken goal the robot stops, and backs away slowly
+once the robot is close: it lines up where it is; if it then makes no progress for ``reapproach_after_s``, it aims at
+that waypoint again once the spot is free. In front of a taken goal the robot stops, and backs away slowly
 now and then to make room (someone in a doorway may be waiting to come out past it). Before a doorway someone stands
 in (a waypoint flagged ``give_way``), the robot yields: it backs away along its trail to ``give_way_distance_m``
 from the doorway, stops there and goes on once the doorway has been free for ``give_way_clear_s``. A target whose
@@ -106,6 +108,12 @@ class NavigatorConfig:
         taken_waypoint_wait_s: ... after the robot has stopped and waited this long for the spot to free up
             (someone walking past it frees it in a second or two, an open door leaf does not); once per waypoint
             (a leaf's edge found on the spot in some steps and not in others does not restart the wait), s.
+        reapproach_after_s: with no progress for this long, while not yielding, the robot aims again at the last
+            waypoint it passed if that one has a heading and the robot has not crossed the waypoint after it, once its
+            spot is free, with its given allowed distance; once per waypoint; the one before follows by the same rule
+            (:meth:`ReactiveNavigator3D._reapproach`). A doorway's approach waypoint lined up at off its spot
+            (someone stood there) left the robot where it found no path through a 0.8 m doorway, turning on the spot
+            until the stuck timeout (the flat). None: never, s.
         target_slow_down_m: the speed falls linearly over this distance to the final target, m.
         target_min_speed: relative speed kept at the final target (0..1).
         slow_down_distance_m: obstacles whose effective distance (gap to the robot's section, divided by the
@@ -122,6 +130,11 @@ class NavigatorConfig:
             way, and among people blocking the way ahead the robot turns back and forth between them and the
             people it then sees; with it on, it waits instead (in the simulated crowds that made no fewer
             interventions: see the README).
+        skip_within_view: a waypoint after the current one counts as reachable (to cut to it) only along a path
+            that stays where a sensor sees from the robot's pose (as ``limit_to_view``, for this choice alone; needs
+            ``view``). A robot facing away from a room's wall took the unseen space behind it for free, cut from
+            the room's waypoints to a corridor waypoint beyond the wall and turned on the spot inside the room (the
+            office's long runs).
         memory: use the short-term memory.
         memory_config: its options.
         recovery_speed_m_s: backward speed while recovering, m/s.
@@ -234,6 +247,7 @@ class NavigatorConfig:
     waypoint_heading_tolerance_rad: float = math.radians(20.0)
     taken_waypoint_pass_m: float = 0.6
     taken_waypoint_wait_s: float = 0.0
+    reapproach_after_s: float | None = 8.0
     target_slow_down_m: float = 0.8
     target_min_speed: float = 0.15
     slow_down_distance_m: float = 0.6
@@ -241,6 +255,7 @@ class NavigatorConfig:
     min_speed_near_obstacles: float = 0.4
     lateral_obstacle_weight: float = 0.3
     limit_to_view: bool = False
+    skip_within_view: bool = True
     memory: bool = True
     memory_config: MemoryConfig = field(default_factory=MemoryConfig)
     recovery_speed_m_s: float = 0.08
@@ -289,6 +304,7 @@ class NavigatorConfig:
             (0 < self.waypoint_heading_tolerance_rad <= math.pi, "waypoint_heading_tolerance_rad must be in (0, pi]"),
             (self.taken_waypoint_pass_m >= 0, "taken_waypoint_pass_m must be >= 0"),
             (self.taken_waypoint_wait_s >= 0, "taken_waypoint_wait_s must be >= 0"),
+            (self.reapproach_after_s is None or self.reapproach_after_s > 0, "reapproach_after_s must be > 0 or None"),
             (0 <= self.min_speed_near_obstacles <= 1, "min_speed_near_obstacles must be in [0, 1]"),
             (0 < self.lateral_obstacle_weight <= 1, "lateral_obstacle_weight must be in (0, 1]"),
             (self.stop_distance_m < self.slow_down_distance_m, "stop_distance_m must be < slow_down_distance_m"),
@@ -421,8 +437,10 @@ class ReactiveNavigator3D:
         self._hull_xy = np.asarray(hull.coords)[:-1]  # (H, 2) the robot's outline, base frame
         self._hull_samples_xy = np.array([hull.interpolate(s).coords[0]  # every 4 cm along it
                                           for s in np.linspace(0.0, hull.length, int(hull.length / 0.04) + 1)])
-        self._view_limits = ([_view_limits(space, self.view, self.bands) for space in self._spaces]
-                             if self.view is not None and cfg.limit_to_view else None)
+        seen = ([_view_limits(space, self.view, self.bands) for space in self._spaces]
+                if self.view is not None and (cfg.limit_to_view or cfg.skip_within_view) else None)
+        self._view_limits = seen if cfg.limit_to_view else None
+        self._skip_view_limits = seen if cfg.skip_within_view else None
         self.reset()
 
     # ---------------------------------------------------------------------------------------------- targets
@@ -497,6 +515,7 @@ class ReactiveNavigator3D:
                              f"({len(wp)},)")
         near[-1] = self.config.target_allowed_distance_m
         self._waypoints, self._allow_skip, self._allowed_m, self._target = wp, skip, near, 0
+        self._given_allowed_m, self._reapproached = near.copy(), set()
         self._first_unpassed, self._progress_target = 0, -1  # waypoints before the first are passed
         self._headings, self._aligning, self._give_way = heading, False, yields
         self._held_steps, self._yielding, self._doorway_clear_since_s = 0, False, None
@@ -584,6 +603,7 @@ class ReactiveNavigator3D:
         limits = self._spaces[0].tp_limits_all(self._spaces, xy, ptr)
         if self._view_limits is not None:  # what no sensor sees is not known to be free
             limits = [np.minimum(lim, cap) for lim, cap in zip(limits, self._view_limits, strict=True)]
+        self._reapproach(stamp_s, T_odom_base, band_xy)
         target_index = self._reachable_target(T_odom_base, limits)
         T_base_odom = se2.inverse(T_odom_base)
         target_base = se2.transform_points(T_base_odom, self._waypoints[target_index][None])[0]
@@ -694,12 +714,32 @@ class ReactiveNavigator3D:
             return self._target
         ahead, xy = ahead[near], xy[near]
         reachable = np.zeros(len(ahead), dtype=bool)
+        if self._skip_view_limits is not None:  # no skipping through what no sensor sees (a wall behind it)
+            limits = [np.minimum(lim, cap) for lim, cap in zip(limits, self._skip_view_limits, strict=True)]
         for space, lim in zip(self._spaces, limits, strict=True):
             k, d, exact = space.inverse_map_many(xy)
             reachable |= exact & (d <= 1.0) & (lim[k] > 1.01 * d)
         if reachable.any():
             self._target = int(ahead[np.nonzero(reachable)[0][-1]])
         return self._target
+
+    def _reapproach(self, stamp_s: float, T_odom_base: np.ndarray, band_xy: list[np.ndarray]) -> None:
+        """Aim again at the last waypoint passed, with its given allowed distance, if it has a heading (where the
+        robot lines up before a doorway or a narrow node), the robot has not crossed the waypoint after it, has made
+        no progress for ``reapproach_after_s`` while not yielding, and the robot standing on the waypoint at its
+        heading would overlap no point now; once per waypoint. The time without progress runs on, so in the next
+        steps the waypoint before it follows by the same rule: the robot goes back along its route through the
+        waypoints with a heading whose next waypoint it has not crossed."""
+        cfg, k = self.config, self._first_unpassed - 1
+        if cfg.reapproach_after_s is None or k < 0 or k in self._reapproached or self._yielding or \
+                self._best_distance_stamp_s is None or not np.isfinite(self._headings[k]) or \
+                stamp_s - self._best_distance_stamp_s < cfg.reapproach_after_s or \
+                not self._short_of(T_odom_base, k + 1) or \
+                self._would_overlap(T_odom_base, self._waypoints[k], float(self._headings[k]), band_xy):
+            return
+        self._reapproached.add(k)
+        self._target = self._first_unpassed = k
+        self._allowed_m[k] = self._given_allowed_m[k]
 
     def _in_doorway_passed(self, T_odom_base: np.ndarray) -> bool:
         """Whether the last waypoint passed is a doorway (flagged ``give_way``, without a heading) the robot has not

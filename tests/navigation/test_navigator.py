@@ -919,3 +919,75 @@ def test_a_new_route_to_the_same_goal_can_keep_the_time_without_progress(cache_d
     stuck += [nav.step(0.05 * k, T, np.zeros((0, 3))).stuck for k in range(120, 240)]
     assert not any(stuck[:200])
     assert any(stuck[200:]) is keep  # 10-12 s after the start
+
+
+@pytest.mark.parametrize(("reapproach_after_s", "person_stays", "back_at_s"),
+                         [(8.0, False, 8.0), (None, False, None), (8.0, True, None)])
+def test_lined_up_off_its_spot_and_stalled_the_robot_aims_at_the_approach_waypoint_again(
+        cache_dir, reapproach_after_s, person_stays, back_at_s) -> None:
+    # the approach waypoint (2, 0.5), heading +y, of a 0.8 m doorway (2, 1.1) in a wall along y = 1.1: someone
+    # stands beside its spot, so the robot 0.45 m west of it lines up where it is; held there (it finds no way
+    # through from there), it aims at the approach waypoint again after reapproach_after_s without progress, once
+    # the spot is free, and not while someone still stands on it
+    walls = np.vstack([wall(-3.0, 1.1, 1.6, 1.1), wall(2.4, 1.1, 6.0, 1.1)])
+    nav = make_nav(cache_dir, reapproach_after_s=reapproach_after_s)
+    nav.set_waypoints(np.array([[2.0, 0.5], [2.0, 1.1], [2.0, 2.0]]), allow_skip=np.array([False, False, True]),
+                      allowed_distance_m=np.array([0.15, 0.3, 0.3]), headings_rad=np.array([np.pi / 2, np.nan, np.nan]),
+                      give_way=np.array([False, True, False]))
+    T = se2.from_xy_yaw(1.55, 0.5, np.pi / 2)
+    targets = []
+    for k in range(240):  # 12 s
+        t_s = 0.05 * k
+        world = np.vstack([walls, _person(2.2, 0.5)]) if person_stays or t_s < 1.0 else walls
+        targets.append(nav.step(t_s, T, np.column_stack([se2.transform_points(se2.inverse(T), world[:, :2]),
+                                                         world[:, 2]])).target_index)
+    targets = np.array(targets)
+    assert targets[:20].max() == 1  # lined up off the spot within the first second
+    if back_at_s is None:
+        assert np.all(targets[20:] == 1)
+    else:
+        first = int(np.argmax(targets[20:] == 0)) + 20
+        assert targets[first] == 0 and back_at_s <= 0.05 * first <= back_at_s + 1.0
+        assert np.all(targets[first:] == 0)  # once: held off it, the robot does not pass it again
+
+
+@pytest.mark.parametrize("within_view", [True, False])
+def test_a_waypoint_is_skipped_to_only_along_paths_a_sensor_sees(cache_dir, within_view) -> None:
+    # a 240-degree lidar facing +x, nothing sensed; the route goes 1.5 m ahead, then to waypoints behind the robot
+    # on its left: along paths that turn it around into space no sensor sees (where a wall may stand, as in a room
+    # the route leaves through a doorway) they are not skipped to
+    from simnav.navigation.sensing import ViewSector
+
+    lidar = ViewSector(0.2, 0.0, 0.0, math.radians(120.0), 5.0)
+    nav = ReactiveNavigator3D([BASE, MAST], V_MAX, W_MAX, max_acc_m_s2=1.0, max_ang_acc_rad_s2=3.0,
+                              config=replace(CONFIG, skip_within_view=within_view), cache_dir=cache_dir, view=[lidar])
+    nav.set_waypoints(np.array([[1.5, 0.0], [-1.0, 0.8], [-2.0, 0.8]]), allowed_distance_m=np.array([0.3, 0.3, 0.3]))
+    target = nav.step(0.0, np.eye(3), np.zeros((0, 3))).target_index
+    assert target == 0 if within_view else target > 0
+    nav.set_waypoints(np.array([[1.5, 0.0], [2.5, 0.3], [3.5, 0.3]]), allowed_distance_m=np.array([0.3, 0.3, 0.3]))
+    assert nav.step(0.05, np.eye(3), np.zeros((0, 3))).target_index == 1  # ahead, in view: skipped to either way
+
+
+def test_stalled_the_robot_goes_back_along_its_route_through_the_waypoints_it_lined_up_at(cache_dir) -> None:
+    # two waypoints to line up at, 0.4 and 0.55 m ahead (heading +x), both lined up at off their spots while someone
+    # stood there, then a doorway; held where it stands, 8 s without progress later the robot aims at the second
+    # again and, short of it, at the first right after; without the rule it keeps aiming at the doorway
+    def targets(reapproach_after_s):
+        nav = make_nav(cache_dir, reapproach_after_s=reapproach_after_s)
+        nav.set_waypoints(np.array([[0.4, 0.0], [0.55, 0.0], [1.2, 0.0], [2.5, 0.0]]),
+                          allow_skip=np.array([False, False, False, True]), allowed_distance_m=np.array([0.15] * 4),
+                          headings_rad=np.array([0.0, 0.0, np.nan, np.nan]),
+                          give_way=np.array([False, False, True, False]))
+        out = []
+        for k in range(300):  # 15 s
+            t_s = 0.05 * k
+            world = _person(0.6, 0.45) if t_s < 1.0 else np.zeros((0, 3))
+            out.append(nav.step(t_s, np.eye(3), world).target_index)
+        return np.array(out)
+
+    back = targets(8.0)
+    assert back[19] == 2  # both lined up at off their spots within the first second
+    first = 20 + int(np.argmax(back[20:] != 2))
+    assert back[first] == 1 and 8.0 <= 0.05 * first <= 9.0
+    assert np.all(back[first + 1:] == 0)
+    assert np.all(targets(None)[19:] == 2)
